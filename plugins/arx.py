@@ -1,0 +1,172 @@
+"""ARX: multi-input multi-output AutoRegressive model with eXogenous inputs, by least squares.
+
+``y[k] + A1 y[k-1] + ... + A_na y[k-na] = B1 u[k-nk] + ... + B_nb u[k-nk-nb+1] (+ offset)``
+
+Every output regresses on the past of *every* output (full ``ny×ny`` matrices, so outputs can
+couple) and of every input.  Orders and delays may differ per input.  The regressors are built
+per experiment and stacked (never the signals), columns are scaled to unit norm, and the least-
+squares problem is solved by a QR-based solver (LAPACK ``gelsy``), which is stable when forces
+in newtons and angles in radians share one regression.  The paper's orders are the defaults:
+``na = nb = 8``, ``nk = 1``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+from numpy.typing import NDArray
+from tendonkit.dataset import Dataset
+from tendonkit.errors import OptionError
+from tendonkit.hookspecs import hookimpl
+from tendonkit.identification import build_model, require_samples
+from tendonkit.schema import ARX as ARXRep
+from tendonkit.schema import Model
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True, kw_only=True)
+class ARX:
+    """Options of the ARX identifier.
+
+    Parameters
+    ----------
+    na : int
+        Number of past outputs (>= 0).
+    nb : int or tuple of int
+        Number of past values per input (>= 0); one value for all inputs or one per input.
+    nk : int or tuple of int
+        Input delay in samples (>= 0); one value for all inputs or one per input.
+    offset : bool
+        Also estimate a constant offset per output.
+    ridge : float
+        Tikhonov regularisation weight on the (scaled) parameters; 0 for plain least squares.
+
+    Examples
+    --------
+    >>> ARX(na=2, nb=(2, 1), nk=1).na
+    2
+    """
+
+    name: ClassVar[str] = "arx"
+    description: ClassVar[str] = (
+        "MIMO ARX by least squares (QR solver, scaled regressors); orders per input; paper: 8, 8, 1."
+    )
+
+    na: int = 8
+    nb: int | tuple[int, ...] = 8
+    nk: int | tuple[int, ...] = 1
+    offset: bool = False
+    ridge: float = 0.0
+
+    def __post_init__(self) -> None:
+        p = []
+        if not _is_int(self.na) or self.na < 0:
+            p.append(f"na must be an integer >= 0, found {self.na!r}.")
+        for key in ("nb", "nk"):
+            val = getattr(self, key)
+            vals = val if isinstance(val, tuple) else (val,)
+            if not vals or not all(_is_int(v) and v >= 0 for v in vals):
+                p.append(f"{key} must be an integer >= 0 or a tuple of them, found {val!r}.")
+        if not isinstance(self.ridge, int | float) or not np.isfinite(self.ridge) or self.ridge < 0:
+            p.append(f"ridge must be a number >= 0, found {self.ridge!r}.")
+        if not p and self.na == 0 and max(_tup(self.nb, 1)) == 0:
+            p.append("na and nb are both zero: the model would have no parameters.")
+        if p:
+            raise OptionError("Invalid options for arx:", p)
+
+    def orders(self, nu: int) -> tuple[list[int], list[int]]:
+        """Per-input ``nb`` and ``nk`` lists for ``nu`` inputs."""
+        nb, nk = _tup(self.nb, nu), _tup(self.nk, nu)
+        if len(nb) != nu or len(nk) != nu:
+            raise OptionError(
+                f"arx: nb and nk must give one value or one per input ({nu}); found nb={self.nb!r}, "
+                f"nk={self.nk!r}."
+            )
+        return list(nb), list(nk)
+
+    def identify(self, dataset: Dataset) -> Model:
+        """Estimate the ARX model from ``dataset`` (inputs and outputs as selected there)."""
+        nu, ny = dataset.nu, dataset.ny
+        nb, nk = self.orders(nu)
+        lag = max([self.na, *[k + b - 1 for k, b in zip(nk, nb)], 0])
+        n_par = self.na * ny + sum(nb) + int(self.offset)
+        require_samples(dataset, lag + 1, f"arx(na={self.na}, nb={self.nb}, nk={self.nk})")
+        rows = sum(e.n_samples - lag for e in dataset.experiments)
+        if rows < n_par:
+            from tendonkit.errors import DataError
+
+            raise DataError(
+                f"Too few samples for arx: {rows} regression rows for {n_par} parameters per output."
+            )
+        Phi = np.vstack(
+            [_regressors(e.u, e.y, self.na, nb, nk, lag, self.offset) for e in dataset.experiments]
+        )
+        Y = np.vstack([e.y[lag:] for e in dataset.experiments])
+        theta = _solve(Phi, Y, self.ridge)
+        return build_model(
+            self, dataset, _to_representation(theta, self.na, nb, nk, ny, nu, self.offset)
+        )
+
+
+def _is_int(v: object) -> bool:
+    return isinstance(v, int | np.integer) and not isinstance(v, bool)
+
+
+def _tup(v: int | tuple[int, ...], n: int) -> tuple[int, ...]:
+    return v if isinstance(v, tuple) else (v,) * n
+
+
+def _regressors(
+    u: FloatArray, y: FloatArray, na: int, nb: list[int], nk: list[int], lag: int, offset: bool
+) -> FloatArray:
+    """Rows ``k = lag..n-1`` of ``[-y[k-1] .. -y[k-na], u_m[k-nk_m] .. u_m[k-nk_m-nb_m+1], 1]``."""
+    n = y.shape[0]
+    cols = []
+    for i in range(1, na + 1):
+        cols.append(-y[lag - i : n - i])
+    for m, (b, k) in enumerate(zip(nb, nk)):
+        for j in range(b):
+            d = k + j
+            cols.append(u[lag - d : n - d, m : m + 1])
+    if offset:
+        cols.append(np.ones((n - lag, 1)))
+    return np.hstack(cols)
+
+
+def _solve(Phi: FloatArray, Y: FloatArray, ridge: float) -> FloatArray:
+    """Least squares with unit-norm column scaling (and optional ridge), QR-based solver."""
+    from scipy.linalg import lstsq
+
+    scale = np.linalg.norm(Phi, axis=0)
+    scale[scale == 0] = 1.0
+    P = Phi / scale
+    if ridge > 0:
+        k = P.shape[1]
+        P = np.vstack([P, np.sqrt(ridge) * np.eye(k)])
+        Y = np.vstack([Y, np.zeros((k, Y.shape[1]))])
+    theta, *_ = lstsq(P, Y, lapack_driver="gelsy", check_finite=False)
+    return np.asarray(theta / scale[:, None])
+
+
+def _to_representation(
+    theta: FloatArray, na: int, nb: list[int], nk: list[int], ny: int, nu: int, offset: bool
+) -> ARXRep:
+    A = [theta[i * ny : (i + 1) * ny].T.copy() for i in range(na)]
+    nbmax = max(nb) if nb else 0
+    B = [np.zeros((ny, nu)) for _ in range(nbmax)]
+    pos = na * ny
+    for m, b in enumerate(nb):
+        for j in range(b):
+            B[j][:, m] = theta[pos]
+            pos += 1
+    off = theta[pos].copy() if offset else None
+    return ARXRep(A=tuple(A), B=tuple(B), nk=tuple(nk), offset=off)
+
+
+@hookimpl
+def tendonkit_register_identifiers(registry):  # type: ignore[no-untyped-def]
+    """Register the ARX identifier."""
+    registry.add(ARX)

@@ -1,0 +1,154 @@
+"""The command line: identify -> simulate -> compare, and one clear message per user error."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from tendonkit.cli import main
+from tendonkit.dataset import Dataset
+
+
+def run(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "tendonkit.cli", *args], capture_output=True, text=True
+    )
+
+
+def test_identify_simulate_compare_round_trip(tmp_path, csv_file, small_data, capsys):
+    data = csv_file()
+    model = tmp_path / "m.json"
+    assert (
+        main(
+            [
+                "identify",
+                str(data),
+                "--method",
+                "arx",
+                "--inputs",
+                "u1,u2",
+                "--outputs",
+                "y1,y2",
+                "--option",
+                "na=4",
+                "--option",
+                "nb=4",
+                "-o",
+                str(model),
+            ]
+        )
+        == 0
+    )
+    assert json.loads(model.read_text())["representation"]["kind"] == "arx"
+    pred = tmp_path / "pred.csv"
+    assert main(["simulate", str(model), str(data), "-o", str(pred)]) == 0
+    header = pred.read_text().splitlines()[0]
+    assert header == "t,y1,y2"
+    sim = Dataset.from_csv(pred, [], ["y1", "y2"], require_outputs=True)
+    assert sim.n_samples == Dataset.from_csv(data, ["u1"], ["y1"]).n_samples
+    out = tmp_path / "cmp.json"
+    assert main(["compare", str(data), str(model), "--json", str(out)]) == 0
+    res = json.loads(out.read_text())
+    assert res["models"][0]["mean_fit"] > 90
+    printed = capsys.readouterr().out
+    assert "mean [%]" in printed and f"{res['models'][0]['mean_fit']:.2f}" in printed
+
+
+def test_errors_are_listed_once_with_exit_2_and_no_traceback(tmp_path, csv_file):
+    data = csv_file()
+    r = run(
+        "identify",
+        str(data),
+        "--method",
+        "nosuch",
+        "--inputs",
+        "u1,F9",
+        "--outputs",
+        "y1",
+        "--option",
+        "garbage",
+        "-o",
+        str(tmp_path / "missing" / "m.json"),
+    )
+    assert r.returncode == 2
+    assert "Traceback" not in r.stderr
+    for expected in (
+        "unknown method 'nosuch'",
+        "'garbage' is not of the form KEY=VALUE",
+        "folder of output",
+        "input column 'F9' is not in the file",
+    ):
+        assert expected in r.stderr
+    assert r.stderr.count("tendonkit: error:") == 1
+
+
+def test_bad_option_values_are_reported(tmp_path, csv_file):
+    r = run(
+        "identify",
+        str(csv_file()),
+        "--method",
+        "arx",
+        "--inputs",
+        "u1",
+        "--outputs",
+        "y1",
+        "--option",
+        "na=-1",
+        "--option",
+        "nb=x",
+        "--option",
+        "bogus=1",
+        "-o",
+        str(tmp_path / "m.json"),
+    )
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert "nb='x' is not a valid" in r.stderr and "unknown option 'bogus'" in r.stderr
+
+
+def test_refuses_to_overwrite_an_input(tmp_path, csv_file):
+    data = csv_file()
+    before = data.read_bytes()
+    r = run("identify", str(data), "--inputs", "u1", "--outputs", "y1", "-o", str(data))
+    assert r.returncode == 2 and "refusing to overwrite" in r.stderr
+    assert data.read_bytes() == before
+
+
+def test_bad_model_file_is_one_message(tmp_path, csv_file):
+    bad = tmp_path / "bad.json"
+    bad.write_text("{not json")
+    r = run("simulate", str(bad), str(csv_file()), "-o", str(tmp_path / "p.csv"))
+    assert r.returncode == 2 and "is not valid JSON" in r.stderr and "Traceback" not in r.stderr
+    assert not (tmp_path / "p.csv").exists()
+
+
+def test_simulate_without_outputs_in_data_uses_model_x0(tmp_path, small_data):
+    from tendonkit.dataset import write_csv
+
+    truth, train, _ = small_data
+    model = truth.save(tmp_path / "truth.json")
+    e = train.experiments[0]
+    data = write_csv(tmp_path / "u.csv", {"t": e.t, "u1": e.u[:, 0], "u2": e.u[:, 1]})
+    pred = tmp_path / "p.csv"
+    assert main(["simulate", str(model), str(data), "-o", str(pred)]) == 0
+    got = np.loadtxt(pred, delimiter=",", skiprows=1)
+    from tendonkit.simulate import simulate
+
+    np.testing.assert_allclose(got[:, 1:], simulate(truth, e.u, initial="model"), atol=1e-12)
+    r = run("simulate", str(model), str(data), "-o", str(pred), "--initial", "estimate")
+    assert r.returncode == 2 and "needs the model's outputs" in r.stderr
+
+
+def test_plugins_lists_builtins(capsys):
+    assert main(["plugins"]) == 0
+    out = capsys.readouterr().out
+    for name in ("n4sid", "arx", "sindyc"):
+        assert f"  {name}" in out
+
+
+@pytest.mark.parametrize("argv", [["--help"], ["identify", "--help"]])
+def test_help_exits_zero(argv):
+    r = run(*argv)
+    assert r.returncode == 0 and "usage: tendonkit" in r.stdout

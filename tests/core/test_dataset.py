@@ -1,0 +1,95 @@
+"""Dataset loading and validation: every problem reported at once."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from tendonkit.dataset import Dataset, write_csv
+from tendonkit.errors import DataError
+
+
+def _write(tmp_path, name, header, rows):
+    path = tmp_path / name
+    path.write_text(",".join(header) + "\n" + "\n".join(",".join(map(str, r)) for r in rows) + "\n")
+    return path
+
+
+def test_loads_columns_by_name_and_keeps_extras(csv_file):
+    ds = Dataset.from_csv(csv_file(), ["u2", "u1"], ["y1"])
+    assert ds.inputs == ("u2", "u1") and ds.outputs == ("y1",)
+    assert ds.dt == pytest.approx(0.05)
+    assert "extra" in ds.experiments[0].extra and "y2" in ds.experiments[0].extra
+    assert ds.columns[:3] == ["u2", "u1", "y1"]
+
+
+def test_every_problem_is_listed_at_once(tmp_path):
+    rows = [[0.0, 1, 5, "x"], [0.1, 1, float("nan"), 2], [0.1, 1, 3, 3], [0.5, 1, 2, 4]]
+    path = _write(tmp_path, "bad.csv", ["t", "F1", "pan", "pan"], rows)
+    with pytest.raises(DataError) as info:
+        Dataset.from_csv(path, ["F1", "F5"], ["pan", "tilt"])
+    text = str(info.value)
+    assert "duplicate column names in the header: ['pan']" in text
+    assert "input column 'F5' is not in the file. Columns: t, F1, pan, pan." in text
+    assert "output column 'tilt' is not in the file" in text
+    assert len(info.value.problems) == 3
+
+
+def test_time_problems_state_the_tolerance(tmp_path):
+    path = _write(
+        tmp_path, "t.csv", ["t", "u", "y"], [[0, 1, 2], [0.1, 2, 3], [0.25, 3, 1], [0.35, 1, 2]]
+    )
+    with pytest.raises(DataError, match=r"differs from the median 0.1 s by more than 1%"):
+        Dataset.from_csv(path, ["u"], ["y"])
+    path = _write(tmp_path, "t2.csv", ["t", "u", "y"], [[0, 1, 2], [0.1, 2, 3], [0.1, 3, 1]])
+    with pytest.raises(DataError, match="must increase"):
+        Dataset.from_csv(path, ["u"], ["y"])
+
+
+def test_nan_constant_and_non_numeric_values(tmp_path):
+    rows = [[0.0, 1, 2, "abc"], [0.1, 1, float("nan"), 1], [0.2, 1, 3, 2]]
+    path = _write(tmp_path, "v.csv", ["t", "u", "y", "z"], rows)
+    with pytest.raises(DataError) as info:
+        Dataset.from_csv(path, ["u", "z"], ["y"])
+    text = str(info.value)
+    assert "non-numeric values: row 2, column 'z': 'abc'" in text
+    path = _write(
+        tmp_path, "w.csv", ["t", "u", "y"], [[0.0, 1, 2], [0.1, 1, float("nan")], [0.2, 1, 3]]
+    )
+    with pytest.raises(DataError) as info:
+        Dataset.from_csv(path, ["u"], ["y"])
+    text = str(info.value)
+    assert "output 'y' has 1 NaN/inf values (first at row 2" in text
+    assert "input 'u' is constant" in text
+
+
+def test_same_column_as_input_and_output_is_refused(csv_file):
+    with pytest.raises(DataError, match="used more than once"):
+        Dataset.from_csv(csv_file(), ["u1"], ["u1"])
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(DataError, match="does not exist"):
+        Dataset.from_csv(tmp_path / "nope.csv", ["u"], ["y"])
+
+
+def test_several_experiments_and_split(small_data, tmp_path):
+    _, train, valid = small_data
+    joined = train.concat(valid)
+    assert len(joined.experiments) == 2 and joined.n_samples == 2800
+    a, b = joined.split(0.75)
+    assert [e.n_samples for e in a.experiments] == [1500, 600]
+    assert [e.n_samples for e in b.experiments] == [500, 200]
+    np.testing.assert_array_equal(b.experiments[0].u, train.experiments[0].u[1500:])
+
+
+def test_hash_changes_with_data(small_data):
+    _, train, valid = small_data
+    assert train.hash() != valid.hash()
+    assert train.hash() == train.with_experiments(train.experiments).hash()
+
+
+def test_write_csv_round_trip(tmp_path):
+    cols = {"t": np.arange(5) * 0.1, "u": np.pi * np.arange(5), "y": np.exp(np.arange(5))}
+    p = write_csv(tmp_path / "x.csv", cols)
+    ds = Dataset.from_csv(p, ["u"], ["y"])
+    np.testing.assert_array_equal(ds.experiments[0].y[:, 0], cols["y"])  # %.17g is exact

@@ -1,0 +1,122 @@
+"""Simulation and prediction agree with python-control and with each other."""
+
+from __future__ import annotations
+
+import control
+import numpy as np
+import pytest
+from tendonkit.errors import DataError
+from tendonkit.metrics import fit
+from tendonkit.schema import ARX, Block, Model, Signal, SparseMap, StateSpace
+from tendonkit.simulate import apply_block, estimate_x0, play_operator, predict, simulate
+from tendonkit.terms import Factor, Term
+
+
+def test_state_space_matches_python_control(truth8):
+    rng = np.random.default_rng(0)
+    u = rng.normal(size=(300, 4))
+    rep = truth8.representation
+    x0 = rng.normal(size=8)
+    y = simulate(truth8, u, initial=x0)
+    ref = control.forced_response(truth8.to_control(), U=u.T, X0=x0)
+    np.testing.assert_allclose(y, ref.outputs.T, atol=1e-10)
+    # the estimated initial state recovers x0 from noise-free data
+    np.testing.assert_allclose(estimate_x0(rep, u, y), x0, atol=1e-6)
+    np.testing.assert_allclose(simulate(truth8, u, y=y), y, atol=1e-8)
+
+
+def test_initial_policies_differ_as_documented(truth8):
+    rng = np.random.default_rng(1)
+    u = rng.normal(size=(100, 4))
+    x0 = rng.normal(size=8)
+    y = simulate(truth8, u, initial=x0)
+    assert fit(y, simulate(truth8, u, y=y, initial="estimate")).min() > 99.99
+    assert fit(y, simulate(truth8, u, initial="zero")).min() < 99.9
+    with pytest.raises(DataError, match="needs the measured outputs"):
+        simulate(truth8, u, initial="estimate")
+
+
+def test_one_step_prediction_of_arx_is_exact_on_its_own_data():
+    rng = np.random.default_rng(2)
+    rep = ARX(A=(np.array([[-0.7]]), np.array([[0.1]])), B=(np.array([[0.5]]),), nk=(1,))
+    m = Model("a", 1.0, (Signal("u"),), (Signal("y"),), rep)
+    u = rng.normal(size=(400, 1))
+    y = simulate(m, u, initial="zero") + 0.05 * rng.normal(size=(400, 1))
+    # ŷ(t|t-1) equals the ARX regression evaluated on the measured data
+    pred = predict(m, u, y, k=1)
+    manual = 0.7 * y[1:-1, 0] - 0.1 * y[:-2, 0] + 0.5 * u[1:-1, 0]
+    np.testing.assert_allclose(pred[2:, 0], manual, atol=1e-12)
+
+
+def test_k_step_prediction_tends_to_free_run():
+    rng = np.random.default_rng(3)
+    rep = ARX(A=(np.array([[-0.6]]),), B=(np.array([[1.0]]),), nk=(1,))
+    m = Model("a", 1.0, (Signal("u"),), (Signal("y"),), rep)
+    u = rng.normal(size=(500, 1))
+    y = simulate(m, u, initial="zero") + 0.2 * rng.normal(size=(500, 1))
+    free = simulate(m, u, y=y)
+    errs = [np.abs(predict(m, u, y, k=k)[60:] - free[60:]).max() for k in (1, 5, 40)]
+    assert errs[0] > errs[1] > errs[2] and errs[2] < 1e-6
+
+
+def test_k_step_prediction_of_state_space_with_kalman_gain(truth8):
+    rng = np.random.default_rng(4)
+    u = rng.normal(size=(600, 4))
+    y0 = simulate(truth8, u, initial="zero")
+    y = y0 + 0.05 * y0.std(axis=0) * rng.normal(size=y0.shape)
+    f1 = fit(y, predict(truth8, u, y, k=1)).mean()
+    f50 = fit(y, predict(truth8, u, y, k=50)).mean()
+    free = fit(y, simulate(truth8, u, y=y)).mean()
+    assert f1 >= f50 - 0.5 and abs(f50 - free) < 1.0
+
+
+def test_sparse_map_simulation_and_prediction():
+    terms = (
+        Term((Factor("x"),)),
+        Term((Factor("x", fn="sin"), Factor("u"))),
+        Term((Factor("u", power=2),)),
+    )
+    coef = np.array([[0.8], [0.3], [-0.05]])
+    m = Model(
+        "s",
+        0.1,
+        (Signal("u"),),
+        (Signal("y"),),
+        SparseMap(terms, coef, (0,)),
+        states=(Signal("x"),),
+    )
+    rng = np.random.default_rng(5)
+    u = rng.uniform(-1, 1, size=(300, 1))
+    y = simulate(m, u, initial=np.array([0.2]))
+    x = 0.2
+    for k in range(299):
+        x = 0.8 * x + 0.3 * np.sin(x) * u[k, 0] - 0.05 * u[k, 0] ** 2
+        assert y[k + 1, 0] == pytest.approx(x, abs=1e-12)
+    np.testing.assert_allclose(predict(m, u, y, k=1)[1:], y[1:], atol=1e-12)
+    np.testing.assert_allclose(predict(m, u, y, k=7)[8:], y[8:], atol=1e-12)
+
+
+def test_input_blocks_are_applied():
+    rep = StateSpace(np.zeros((1, 1)), np.ones((1, 1)), np.ones((1, 1)), np.zeros((1, 1)))
+    base = Model("m", 1.0, (Signal("u"),), (Signal("y"),), rep)
+    u = np.arange(10.0)[:, None]
+    delayed = base.replace(input_blocks=(Block("delay", "u", {"samples": 3.0}),))
+    np.testing.assert_allclose(simulate(delayed, u, initial="zero")[4:, 0], u[:6, 0])
+    sat = base.replace(input_blocks=(Block("saturation", "u", {"lower": 0.0, "upper": 4.0}),))
+    assert simulate(sat, u, initial="zero").max() == 4.0
+
+
+def test_play_operator_width_and_memory():
+    s = np.concatenate([np.linspace(0, 1, 50), np.linspace(1, 0, 50)])
+    out = play_operator(s, 0.1)
+    assert out.max() == pytest.approx(0.9)
+    assert out[-1] == pytest.approx(0.1)  # on the way down it lags by the full width
+    dz = apply_block(
+        Block("dead_zone", "u", {"threshold": 0.5, "center": 0.0}), np.array([-1.0, 0.2, 2.0])
+    )
+    np.testing.assert_allclose(dz, [-0.5, 0.0, 1.5])
+
+
+def test_wrong_input_shape_is_a_data_error(truth8):
+    with pytest.raises(DataError, match=r"shape \(n_samples, 4\)"):
+        simulate(truth8, np.zeros((10, 3)))

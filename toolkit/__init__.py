@@ -1,0 +1,84 @@
+"""tendonkit: data-driven dynamic models of a tendon-actuated continuum robot.
+
+Identify models from measured data (N4SID, ARX, SINDYc and any plugin), simulate and compare
+them, find what they get wrong and why, export them as FMUs and design MPC controllers that
+are checked in co-simulation against a physics plant FMU.
+"""
+
+from __future__ import annotations
+
+from tendonkit.dataset import Dataset, Experiment
+from tendonkit.errors import (
+    DataError,
+    FMUError,
+    OptionError,
+    PluginError,
+    SchemaError,
+    SimulationError,
+    TendonkitError,
+)
+from tendonkit.hookspecs import hookimpl
+from tendonkit.manager import effects, identifiers
+from tendonkit.metrics import fit, fit_table
+from tendonkit.schema import ARX, Block, Model, Provenance, Signal, SparseMap, StateSpace
+from tendonkit.simulate import predict, simulate, simulate_dataset
+from tendonkit.terms import Factor, Term
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "ARX",
+    "Block",
+    "DataError",
+    "Dataset",
+    "Experiment",
+    "FMUError",
+    "Factor",
+    "Model",
+    "OptionError",
+    "PluginError",
+    "Provenance",
+    "SchemaError",
+    "Signal",
+    "SimulationError",
+    "SparseMap",
+    "StateSpace",
+    "TendonkitError",
+    "Term",
+    "__version__",
+    "effects",
+    "fit",
+    "fit_table",
+    "hookimpl",
+    "identifiers",
+    "identify",
+    "predict",
+    "simulate",
+    "simulate_dataset",
+]
+
+
+def identify(dataset: Dataset, method: str = "arx", **options: object) -> Model:
+    """Identify a model with a registered method.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        Training data.
+    method : str
+        Registry name (``n4sid``, ``arx``, ``sindyc`` or a plugin's).
+    **options
+        Options of the method (see ``tendonkit plugins``).
+
+    Examples
+    --------
+    >>> import numpy as np, tendonkit as tk
+    >>> rng = np.random.default_rng(0)
+    >>> u = rng.normal(size=(500, 1)); y = np.zeros((500, 1))
+    >>> for k in range(1, 500): y[k] = 0.8 * y[k - 1] + 0.5 * u[k - 1]
+    >>> m = tk.identify(tk.Dataset.from_arrays(u, y, dt=0.1), "arx", na=1, nb=1)
+    >>> round(float(m.representation.A[0][0, 0]), 6)
+    -0.8
+    """
+    entry = identifiers().get(method)
+    return entry.create(**options).identify(dataset)

@@ -1,0 +1,249 @@
+"""Strict parsing of model files into :class:`~tendonkit.schema.Model` (no code is evaluated)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from tendonkit.errors import SchemaError
+from tendonkit.schema import (
+    ARX,
+    SCHEMA_VERSION,
+    Block,
+    Model,
+    Provenance,
+    Signal,
+    SparseMap,
+    StateSpace,
+)
+from tendonkit.terms import Term, term_from_dict
+
+_TOP_KEYS = {
+    "schema_version",
+    "name",
+    "dt",
+    "inputs",
+    "outputs",
+    "states",
+    "representation",
+    "input_blocks",
+    "output_blocks",
+    "provenance",
+}
+_REP_KEYS = {
+    "state_space": {"kind", "A", "B", "C", "D", "x0", "K"},
+    "arx": {"kind", "A", "B", "nk", "offset", "terms", "term_coefficients"},
+    "sparse_map": {"kind", "terms", "coefficients", "output_states", "x0"},
+}
+
+
+def model_from_dict(data: Any, source: str = "model") -> Model:
+    """Validate plain data and build a :class:`Model`; every problem is reported at once."""
+    p: list[str] = []
+    if not isinstance(data, dict):
+        raise SchemaError(f"{source}: expected a JSON object, found {type(data).__name__}.")
+    version = data.get("schema_version")
+    if version != SCHEMA_VERSION:
+        raise SchemaError(
+            f"{source}: schema_version {version!r} is not supported; this tendonkit reads "
+            f"version {SCHEMA_VERSION}."
+        )
+    unknown = set(data) - _TOP_KEYS
+    if unknown:
+        p.append(f"unknown top-level keys {sorted(unknown)}.")
+    for key in ("name", "dt", "inputs", "outputs", "representation"):
+        if key not in data:
+            p.append(f"missing key {key!r}.")
+    name = data.get("name", "")
+    if not isinstance(name, str):
+        p.append(f"name: expected text, found {name!r}.")
+    dt = data.get("dt")
+    if isinstance(dt, bool) or not isinstance(dt, int | float) or not dt > 0:
+        p.append(f"dt: expected a positive number of seconds, found {dt!r}.")
+    inputs = _signals(data.get("inputs", []), "inputs", p)
+    outputs = _signals(data.get("outputs", []), "outputs", p)
+    states = _signals(data.get("states", []), "states", p)
+    rep = _representation(data.get("representation"), p)
+    in_blocks = _blocks(data.get("input_blocks", []), "input_blocks", p)
+    out_blocks = _blocks(data.get("output_blocks", []), "output_blocks", p)
+    prov = _provenance(data.get("provenance", {}), p)
+    if p or rep is None:
+        raise SchemaError(f"{source} is not a valid tendonkit model:", p or ["bad representation"])
+    try:
+        return Model(
+            name=name,
+            dt=float(dt),  # type: ignore[arg-type]
+            inputs=inputs,
+            outputs=outputs,
+            states=states,
+            representation=rep,
+            input_blocks=in_blocks,
+            output_blocks=out_blocks,
+            provenance=prov,
+        )
+    except SchemaError as exc:
+        raise SchemaError(f"{source} is not a valid tendonkit model:", exc.problems) from None
+
+
+def _signals(raw: Any, where: str, p: list[str]) -> tuple[Signal, ...]:
+    if not isinstance(raw, list):
+        p.append(f"{where}: expected a list of {{name, unit}} objects.")
+        return ()
+    out = []
+    for i, s in enumerate(raw):
+        if (
+            not isinstance(s, dict)
+            or not isinstance(s.get("name"), str)
+            or not s["name"]
+            or not isinstance(s.get("unit", ""), str)
+            or set(s) - {"name", "unit"}
+        ):
+            p.append(f"{where}[{i}]: expected {{'name': text, 'unit': text}}, found {s!r}.")
+            continue
+        out.append(Signal(s["name"], s.get("unit", "")))
+    return tuple(out)
+
+
+def _matrix(raw: Any, where: str, p: list[str], ndim: int = 2) -> np.ndarray | None:
+    if raw is None:
+        return None
+    try:
+        arr = np.array(raw, dtype=float)
+    except (TypeError, ValueError):
+        p.append(f"{where}: expected a {ndim}-d array of numbers.")
+        return None
+    if arr.ndim != ndim and not (arr.size == 0 and ndim == 2):
+        p.append(f"{where}: expected a {ndim}-d array, found {arr.ndim}-d.")
+        return None
+    if arr.size == 0 and ndim == 2:
+        arr = arr.reshape(0, 0) if arr.ndim != 2 else arr
+    if not np.all(np.isfinite(arr)):
+        p.append(f"{where}: contains NaN or infinite values.")
+        return None
+    return arr
+
+
+def _required(raw: dict[str, Any], key: str, where: str, p: list[str], ndim: int = 2) -> Any:
+    if key not in raw or raw[key] is None:
+        p.append(f"{where}.{key}: missing.")
+        return None
+    return _matrix(raw[key], f"{where}.{key}", p, ndim)
+
+
+def _terms(raw: Any, where: str, p: list[str]) -> tuple[Term, ...]:
+    if not isinstance(raw, list):
+        p.append(f"{where}: expected a list of terms.")
+        return ()
+    parsed = [term_from_dict(t, f"{where}[{i}]", p) for i, t in enumerate(raw)]
+    return tuple(t for t in parsed if t is not None)
+
+
+def _representation(raw: Any, p: list[str]) -> StateSpace | ARX | SparseMap | None:
+    where = "representation"
+    if not isinstance(raw, dict):
+        p.append(f"{where}: expected an object.")
+        return None
+    kind = raw.get("kind")
+    if kind not in _REP_KEYS:
+        p.append(f"{where}.kind: {kind!r} is not one of {sorted(_REP_KEYS)}.")
+        return None
+    unknown = set(raw) - _REP_KEYS[kind]
+    if unknown:
+        p.append(f"{where}: unknown keys {sorted(unknown)} for kind {kind!r}.")
+    n0 = len(p)
+    if kind == "state_space":
+        mats = {k: _required(raw, k, where, p) for k in "ABCD"}
+        x0 = _matrix(raw.get("x0"), f"{where}.x0", p, 1)
+        K = _matrix(raw.get("K"), f"{where}.K", p, 2)
+        if len(p) > n0:
+            return None
+        return StateSpace(A=mats["A"], B=mats["B"], C=mats["C"], D=mats["D"], x0=x0, K=K)
+    if kind == "arx":
+        A = _matrix_list(raw.get("A"), f"{where}.A", p)
+        B = _matrix_list(raw.get("B"), f"{where}.B", p)
+        nk = raw.get("nk")
+        if not isinstance(nk, list) or not all(
+            isinstance(k, int) and not isinstance(k, bool) for k in nk
+        ):
+            p.append(f"{where}.nk: expected a list of integers, found {nk!r}.")
+            nk = []
+        offset = _matrix(raw.get("offset"), f"{where}.offset", p, 1)
+        terms = _terms(raw.get("terms", []), f"{where}.terms", p)
+        tc = _matrix(raw.get("term_coefficients"), f"{where}.term_coefficients", p, 2)
+        if len(p) > n0:
+            return None
+        return ARX(
+            A=tuple(A), B=tuple(B), nk=tuple(nk), offset=offset, terms=terms, term_coefficients=tc
+        )
+    terms = _terms(raw.get("terms"), f"{where}.terms", p)
+    coef = _required(raw, "coefficients", where, p)
+    outs = raw.get("output_states")
+    if not isinstance(outs, list) or not all(
+        isinstance(i, int) and not isinstance(i, bool) for i in outs
+    ):
+        p.append(f"{where}.output_states: expected a list of state indices, found {outs!r}.")
+        outs = []
+    x0 = _matrix(raw.get("x0"), f"{where}.x0", p, 1)
+    if len(p) > n0:
+        return None
+    return SparseMap(terms=terms, coefficients=coef, output_states=tuple(outs), x0=x0)
+
+
+def _matrix_list(raw: Any, where: str, p: list[str]) -> list[np.ndarray]:
+    if not isinstance(raw, list):
+        p.append(f"{where}: expected a list of matrices.")
+        return []
+    out = []
+    for i, m in enumerate(raw):
+        arr = _matrix(m, f"{where}[{i}]", p)
+        if arr is not None:
+            out.append(arr)
+    return out
+
+
+def _blocks(raw: Any, where: str, p: list[str]) -> tuple[Block, ...]:
+    if not isinstance(raw, list):
+        p.append(f"{where}: expected a list.")
+        return ()
+    out = []
+    for i, b in enumerate(raw):
+        if (
+            not isinstance(b, dict)
+            or set(b) != {"kind", "signal", "params"}
+            or not isinstance(b["kind"], str)
+            or not isinstance(b["signal"], str)
+            or not isinstance(b["params"], dict)
+            or not all(
+                isinstance(v, int | float) and not isinstance(v, bool) for v in b["params"].values()
+            )
+        ):
+            p.append(
+                f"{where}[{i}]: expected {{kind, signal, params: {{name: number}}}}, found {b!r}."
+            )
+            continue
+        out.append(Block(b["kind"], b["signal"], {k: float(v) for k, v in b["params"].items()}))
+    return tuple(out)
+
+
+def _provenance(raw: Any, p: list[str]) -> Provenance:
+    if not isinstance(raw, dict):
+        p.append("provenance: expected an object.")
+        return Provenance()
+    fit = raw.get("training_fit", {})
+    if not isinstance(fit, dict) or not all(
+        isinstance(v, int | float) and not isinstance(v, bool) for v in fit.values()
+    ):
+        p.append("provenance.training_fit: expected {output: number}.")
+        fit = {}
+    opts = raw.get("options", {})
+    if not isinstance(opts, dict):
+        p.append("provenance.options: expected an object.")
+        opts = {}
+    texts = {}
+    for key in ("identifier", "version", "dataset_hash", "notes"):
+        val = raw.get(key, "")
+        if not isinstance(val, str):
+            p.append(f"provenance.{key}: expected text, found {val!r}.")
+            val = ""
+        texts[key] = val
+    return Provenance(options=opts, training_fit={k: float(v) for k, v in fit.items()}, **texts)

@@ -1,0 +1,102 @@
+"""Compare models on data: fit per output and mean (the paper's Table I), optionally more.
+
+The result is plain data (JSON-ready): one entry per model with its fit per output, the mean
+fit, and, when asked, the fits of the reconstructed joints and the end-effector error.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tendonkit.dataset import Dataset
+from tendonkit.errors import DataError
+from tendonkit.metrics import FitRow, fit, fit_table
+from tendonkit.schema import Model
+from tendonkit.simulate import predict, simulate
+
+
+def score(
+    model: Model, data: Dataset, *, initial: str = "estimate", k: int | None = None
+) -> tuple[dict[str, float], list[np.ndarray]]:
+    """Fit per output of ``model`` on every experiment of ``data`` (concatenated for the score).
+
+    Returns the fits and the simulated (or k-step predicted) outputs per experiment.
+    """
+    from tendonkit.simulate import _aligned
+
+    data = _aligned(model, data)
+    sims = []
+    for e in data.experiments:
+        if k is None:
+            sims.append(simulate(model, e.u, y=e.y, initial=initial))  # type: ignore[arg-type]
+        else:
+            sims.append(predict(model, e.u, e.y, k=k))
+    f = fit(data.y, np.vstack(sims))
+    return {n: float(v) for n, v in zip(model.output_names, f)}, sims
+
+
+def compare(
+    models: Sequence[Model],
+    data_files: Sequence[str | Path] | Dataset,
+    *,
+    names: Sequence[str] | None = None,
+    initial: str = "estimate",
+    k: int | None = None,
+    joints: bool = False,
+    ee: bool = False,
+    time: str = "t",
+    plot_dir: str | Path | None = None,
+) -> dict[str, Any]:
+    """Score every model on the data; see the module docstring for the result's layout."""
+    names = list(names) if names is not None else [m.name for m in models]
+    rows: list[dict[str, Any]] = []
+    problems: list[str] = []
+    for name, model in zip(names, models):
+        try:
+            data = (
+                data_files
+                if isinstance(data_files, Dataset)
+                else Dataset.from_csv(data_files, model.input_names, model.output_names, time=time)
+            )
+        except DataError as exc:
+            problems.append(f"model {name}: " + "; ".join(exc.problems or [str(exc)]))
+            continue
+        fits, sims = score(model, data, initial=initial, k=k)
+        row: dict[str, Any] = {
+            "model": str(name),
+            "method": model.provenance.identifier or model.kind,
+            "kind": model.kind,
+            "fit": fits,
+            "mean_fit": float(np.mean(list(fits.values()))),
+        }
+        if joints or ee or plot_dir:
+            from tendonkit.reconstruct import joint_report
+
+            row.update(
+                joint_report(
+                    model, data, sims, joints=joints, ee=ee, plot_dir=plot_dir, name=str(name)
+                )
+            )
+        rows.append(row)
+    if problems:
+        raise DataError("The data do not fit the models:", problems)
+    mode = "free run" if k is None else f"{k}-step prediction"
+    return {"mode": mode, "initial": initial if k is None else None, "models": rows}
+
+
+def render_compare(result: dict[str, Any]) -> str:
+    """Plain-text rendering of :func:`compare`'s result."""
+    rows = [FitRow(r["model"], r["method"], r["fit"]) for r in result["models"]]
+    text = [f"Fit [%] ({result['mode']}), 100 (1 - |y - ŷ| / |y - mean y|):", fit_table(rows)]
+    extra = [r for r in result["models"] if "joint_fit" in r or "ee_error_cm" in r]
+    for r in extra:
+        parts = []
+        if "joint_fit" in r:
+            parts.append(", ".join(f"{j} {v:.1f}" for j, v in r["joint_fit"].items()))
+        if "ee_error_cm" in r:
+            parts.append(f"mean end-effector error {r['ee_error_cm']:.2f} cm")
+        text.append(f"{r['model']}: " + "; ".join(parts))
+    return "\n".join(text)

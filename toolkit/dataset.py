@@ -1,0 +1,424 @@
+"""Measured input/output data: one or more experiments with named, uniformly sampled signals.
+
+Arrays are ``(n_samples, n_signals)``.  Identification concatenates regressors built per
+experiment, never the raw signals, so the boundary between two experiments never creates a
+false transition.  Every problem in a file is collected and reported at once.
+
+Examples
+--------
+>>> import numpy as np
+>>> t = np.arange(100) * 0.03
+>>> ds = Dataset.from_arrays(u=np.c_[np.sin(t), np.cos(t)], y=np.c_[t**2], dt=0.03,
+...                          inputs=["F1", "F2"], outputs=["q1"])
+>>> ds.n_samples, ds.inputs, ds.outputs
+(100, ('F1', 'F2'), ('q1',))
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+from tendonkit.errors import DataError
+
+FloatArray = NDArray[np.float64]
+
+#: Relative tolerance on sample-time uniformity: every step must be within this fraction of
+#: the median step (camera time stamps jitter a little; resampling is the user's decision).
+DT_TOLERANCE = 0.01
+
+
+@dataclass(frozen=True, eq=False)
+class Experiment:
+    """One uninterrupted record: time ``t`` (n,), inputs ``u`` (n, nu), outputs ``y`` (n, ny).
+
+    ``extra`` holds every other numeric column of the source (e.g. ``q3`` or ``ee_x``).
+    """
+
+    t: FloatArray
+    u: FloatArray
+    y: FloatArray
+    name: str = ""
+    extra: dict[str, FloatArray] = field(default_factory=dict)
+
+    @property
+    def n_samples(self) -> int:
+        """Number of samples."""
+        return int(self.t.shape[0])
+
+
+@dataclass(frozen=True, eq=False)
+class Dataset:
+    """Named inputs and outputs over one or more experiments with one sample time ``dt``."""
+
+    inputs: tuple[str, ...]
+    outputs: tuple[str, ...]
+    experiments: tuple[Experiment, ...]
+    dt: float
+    units: dict[str, str] = field(default_factory=dict)
+
+    # -- construction -------------------------------------------------------------------
+    @classmethod
+    def from_arrays(
+        cls,
+        u: FloatArray,
+        y: FloatArray,
+        dt: float,
+        inputs: Sequence[str] | None = None,
+        outputs: Sequence[str] | None = None,
+        *,
+        t0: float = 0.0,
+        name: str = "",
+        extra: dict[str, FloatArray] | None = None,
+    ) -> Dataset:
+        """One experiment from arrays; names default to ``u1..`` and ``y1..``."""
+        u = np.asarray(u, dtype=float)
+        y = np.asarray(y, dtype=float)
+        if u.ndim == 1:
+            u = u[:, None]
+        if y.ndim == 1:
+            y = y[:, None]
+        problems: list[str] = []
+        if u.ndim != 2 or y.ndim != 2:
+            problems.append(
+                f"u and y must be 2-d (n_samples, n_signals); found {u.shape}, {y.shape}."
+            )
+        elif u.shape[0] != y.shape[0]:
+            problems.append(f"u has {u.shape[0]} samples but y has {y.shape[0]}.")
+        if not (np.isfinite(dt) and dt > 0):
+            problems.append(f"dt must be a positive number of seconds, found {dt!r}.")
+        if problems:
+            raise DataError("Cannot build a dataset from these arrays:", problems)
+        inputs = (
+            tuple(inputs) if inputs is not None else tuple(f"u{i + 1}" for i in range(u.shape[1]))
+        )
+        outputs = (
+            tuple(outputs) if outputs is not None else tuple(f"y{i + 1}" for i in range(y.shape[1]))
+        )
+        t = np.asarray(t0 + dt * np.arange(u.shape[0]), dtype=np.float64)
+        exp = Experiment(t=t, u=u.copy(), y=y.copy(), name=name, extra=dict(extra or {}))
+        ds = cls(inputs=inputs, outputs=outputs, experiments=(exp,), dt=float(dt))
+        ds.validate(source=name or "arrays")
+        return ds
+
+    @classmethod
+    def from_csv(
+        cls,
+        paths: str | Path | Sequence[str | Path],
+        inputs: Sequence[str],
+        outputs: Sequence[str],
+        *,
+        time: str = "t",
+        dt_tolerance: float = DT_TOLERANCE,
+        min_samples: int = 2,
+        require_outputs: bool = True,
+    ) -> Dataset:
+        """Read one experiment per CSV file (header row, time column ``time`` in seconds).
+
+        Every problem in every file is collected and reported in one :class:`DataError`.
+        """
+        if isinstance(paths, str | Path):
+            paths = [paths]
+        problems: list[str] = []
+        exps: list[Experiment] = []
+        dts: list[float] = []
+        for path in paths:
+            exp, dt, probs = _read_csv(Path(path), list(inputs), list(outputs), time, dt_tolerance)
+            problems.extend(probs)
+            if exp is not None:
+                exps.append(exp)
+                dts.append(dt)
+        if dts and max(dts) - min(dts) > dt_tolerance * min(dts):
+            problems.append(f"the files have different sample times: {sorted(set(dts))} s.")
+        if problems:
+            raise DataError("The data cannot be used:", problems)
+        ds = cls(
+            inputs=tuple(inputs), outputs=tuple(outputs), experiments=tuple(exps), dt=float(dts[0])
+        )
+        ds.validate(
+            source=", ".join(str(p) for p in paths),
+            min_samples=min_samples,
+            require_outputs=require_outputs,
+        )
+        return ds
+
+    # -- checks ------------------------------------------------------------------------
+    def validate(
+        self, source: str = "dataset", min_samples: int = 2, require_outputs: bool = True
+    ) -> None:
+        """Check names, shapes, finiteness, constant columns and length; report all problems."""
+        p = validation_problems(self, min_samples, require_outputs)
+        if p:
+            raise DataError(f"The data from {source} cannot be used:", p)
+
+    # -- views -------------------------------------------------------------------------
+    @property
+    def nu(self) -> int:
+        """Number of inputs."""
+        return len(self.inputs)
+
+    @property
+    def ny(self) -> int:
+        """Number of outputs."""
+        return len(self.outputs)
+
+    @property
+    def n_samples(self) -> int:
+        """Total samples over all experiments."""
+        return sum(e.n_samples for e in self.experiments)
+
+    @property
+    def u(self) -> FloatArray:
+        """All inputs stacked over experiments (for display and metrics, not for regressors)."""
+        return np.vstack([e.u for e in self.experiments])
+
+    @property
+    def y(self) -> FloatArray:
+        """All outputs stacked over experiments."""
+        return np.vstack([e.y for e in self.experiments])
+
+    def signal(self, name: str) -> FloatArray:
+        """A named column (input, output or extra) stacked over experiments."""
+        parts = []
+        for e in self.experiments:
+            if name in self.inputs:
+                parts.append(e.u[:, self.inputs.index(name)])
+            elif name in self.outputs:
+                parts.append(e.y[:, self.outputs.index(name)])
+            elif name in e.extra:
+                parts.append(e.extra[name])
+            else:
+                raise DataError(
+                    f"Column {name!r} is not in the dataset. Columns: {', '.join(self.columns)}."
+                )
+        return np.concatenate(parts)
+
+    @property
+    def columns(self) -> list[str]:
+        """All column names: inputs, outputs, then the extra columns of the first experiment."""
+        extra = list(self.experiments[0].extra) if self.experiments else []
+        return [*self.inputs, *self.outputs, *extra]
+
+    def split(self, fraction: float = 0.7) -> tuple[Dataset, Dataset]:
+        """Train/validation split in time: the first ``fraction`` of every experiment trains.
+
+        Returns
+        -------
+        (Dataset, Dataset)
+            Training and validation sets with the same signals.
+        """
+        if not 0.0 < fraction < 1.0:
+            raise DataError(f"The split fraction must be in (0, 1), found {fraction}.")
+        a, b = [], []
+        for e in self.experiments:
+            k = round(fraction * e.n_samples)
+            a.append(_slice(e, slice(0, k), f"{e.name}[train]"))
+            b.append(_slice(e, slice(k, None), f"{e.name}[valid]"))
+        return self.with_experiments(a), self.with_experiments(b)
+
+    def with_experiments(self, experiments: Iterable[Experiment]) -> Dataset:
+        """A dataset with the same signals and other experiments."""
+        return Dataset(
+            inputs=self.inputs,
+            outputs=self.outputs,
+            experiments=tuple(experiments),
+            dt=self.dt,
+            units=dict(self.units),
+        )
+
+    def select(self, inputs: Sequence[str], outputs: Sequence[str]) -> Dataset:
+        """Re-select inputs and outputs by name among all columns (inputs, outputs, extras)."""
+        problems = [
+            f"column {n!r} is not in the dataset"
+            for n in (*inputs, *outputs)
+            if n not in self.columns
+        ]
+        if problems:
+            raise DataError(f"Cannot select; columns are {', '.join(self.columns)}:", problems)
+        exps = []
+        for e in self.experiments:
+            cols = {**dict(zip(self.inputs, e.u.T)), **dict(zip(self.outputs, e.y.T)), **e.extra}
+            exps.append(
+                Experiment(
+                    t=e.t,
+                    u=np.column_stack([cols[n] for n in inputs]),
+                    y=np.column_stack([cols[n] for n in outputs]),
+                    name=e.name,
+                    extra={k: v for k, v in cols.items() if k not in (*inputs, *outputs)},
+                )
+            )
+        return Dataset(tuple(inputs), tuple(outputs), tuple(exps), self.dt, dict(self.units))
+
+    def concat(self, other: Dataset) -> Dataset:
+        """The experiments of both datasets (same signals and sample time)."""
+        if (other.inputs, other.outputs) != (self.inputs, self.outputs):
+            raise DataError(
+                f"Cannot join datasets with different signals: {self.inputs}->{self.outputs} and "
+                f"{other.inputs}->{other.outputs}."
+            )
+        if abs(other.dt - self.dt) > DT_TOLERANCE * self.dt:
+            raise DataError(f"Cannot join datasets sampled at {self.dt} s and {other.dt} s.")
+        return self.with_experiments([*self.experiments, *other.experiments])
+
+    def hash(self) -> str:
+        """SHA-256 of names, sample time and values (provenance of identified models)."""
+        h = hashlib.sha256()
+        h.update(repr((self.inputs, self.outputs, round(self.dt, 12))).encode())
+        for e in self.experiments:
+            h.update(np.ascontiguousarray(e.u, dtype=np.float64).tobytes())
+            h.update(np.ascontiguousarray(e.y, dtype=np.float64).tobytes())
+        return h.hexdigest()
+
+
+def _slice(e: Experiment, s: slice, name: str) -> Experiment:
+    return Experiment(
+        t=e.t[s], u=e.u[s], y=e.y[s], name=name, extra={k: v[s] for k, v in e.extra.items()}
+    )
+
+
+def validation_problems(
+    ds: Dataset, min_samples: int = 2, require_outputs: bool = True
+) -> list[str]:
+    """Every problem that makes ``ds`` unusable, as a list of sentences."""
+    p: list[str] = []
+    names = [*ds.inputs, *ds.outputs]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        p.append(f"each signal may be used once, as an input or an output; repeated: {dup}.")
+    if not ds.outputs and require_outputs:
+        p.append("at least one output is needed.")
+    if not ds.experiments:
+        p.append("the dataset has no experiments.")
+    for e in ds.experiments:
+        label = f"experiment {e.name!r}: " if len(ds.experiments) > 1 else ""
+        if e.u.shape != (e.n_samples, ds.nu) or e.y.shape != (e.n_samples, ds.ny):
+            p.append(f"{label}arrays have shapes u{e.u.shape}, y{e.y.shape}, t{e.t.shape}.")
+            continue
+        if e.n_samples < min_samples:
+            p.append(f"{label}{e.n_samples} samples; at least {min_samples} are needed.")
+        for names_, arr, kind in ((ds.inputs, e.u, "input"), (ds.outputs, e.y, "output")):
+            for j, n in enumerate(names_):
+                col = arr[:, j]
+                bad = ~np.isfinite(col)
+                if bad.any():
+                    first = int(np.argmax(bad))
+                    p.append(
+                        f"{label}{kind} {n!r} has {int(bad.sum())} NaN/inf values (first at row "
+                        f"{first + 1}, t = {e.t[first]:g} s)."
+                    )
+                elif e.n_samples > 1 and np.ptp(col) == 0:
+                    p.append(
+                        f"{label}{kind} {n!r} is constant ({col[0]:g}); it carries no information."
+                    )
+    return p
+
+
+def _read_csv(
+    path: Path, inputs: list[str], outputs: list[str], time: str, dt_tol: float
+) -> tuple[Experiment | None, float, list[str]]:
+    """Parse one CSV file; never raises for data problems, returns them instead."""
+    where = str(path)
+    if not path.exists():
+        return None, 0.0, [f"{where}: the file does not exist."]
+    try:
+        with path.open(newline="", encoding="utf-8-sig") as fh:
+            reader = csv.reader(fh)
+            header = next(reader, None)
+            rows = list(reader)
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        return None, 0.0, [f"{where}: cannot be read as CSV text ({exc})."]
+    if not header:
+        return None, 0.0, [f"{where}: the file is empty; a header row is expected."]
+    header = [h.strip() for h in header]
+    p: list[str] = []
+    dup_cols = sorted({h for h in header if header.count(h) > 1})
+    if dup_cols:
+        p.append(f"{where}: duplicate column names in the header: {dup_cols}.")
+    cols = ", ".join(header)
+    for kind, names in (("time", [time]), ("input", inputs), ("output", outputs)):
+        for n in names:
+            if n not in header:
+                p.append(f"{where}: {kind} column {n!r} is not in the file. Columns: {cols}.")
+    requested = [time, *inputs, *outputs]
+    dup_req = sorted({n for n in requested if requested.count(n) > 1})
+    if dup_req:
+        p.append(f"{where}: columns used more than once as time/input/output: {dup_req}.")
+    if p:
+        return None, 0.0, p
+    values = np.full((len(rows), len(header)), np.nan)
+    bad_cells: list[str] = []
+    ragged = 0
+    for i, row in enumerate(rows):
+        if len(row) != len(header):
+            if any(c.strip() for c in row):
+                ragged += 1
+            continue
+        for j, cell in enumerate(row):
+            try:
+                values[i, j] = float(cell)
+            except ValueError:
+                if len(bad_cells) < 5 and header[j] in requested:
+                    bad_cells.append(f"row {i + 2}, column {header[j]!r}: {cell!r}")
+                elif header[j] in requested:
+                    bad_cells.append("")
+    if ragged:
+        p.append(f"{where}: {ragged} rows do not have {len(header)} fields.")
+    shown = [c for c in bad_cells if c]
+    if bad_cells:
+        more = f" (and {len(bad_cells) - len(shown)} more)" if len(bad_cells) > len(shown) else ""
+        p.append(f"{where}: non-numeric values: {'; '.join(shown)}{more}.")
+    idx = {h: j for j, h in enumerate(header)}
+    t = values[:, idx[time]]
+    dt = 0.0
+    if len(t) < 2:
+        p.append(f"{where}: {len(t)} data rows; at least 2 are needed.")
+    elif np.all(np.isfinite(t)):
+        d = np.diff(t)
+        if np.any(d <= 0):
+            k = int(np.argmax(d <= 0))
+            p.append(
+                f"{where}: time column {time!r} must increase; row {k + 3} has t = {t[k + 1]:g} s "
+                f"after {t[k]:g} s."
+            )
+        else:
+            dt = float(np.median(d))
+            dev = np.abs(d - dt)
+            if np.any(dev > dt_tol * dt):
+                k = int(np.argmax(dev))
+                p.append(
+                    f"{where}: sampling is not uniform: step {d[k]:g} s at row {k + 3} differs from "
+                    f"the median {dt:g} s by more than {dt_tol:.0%} (the tolerance)."
+                )
+    else:
+        p.append(f"{where}: time column {time!r} has missing or non-numeric values.")
+    if p:
+        return None, 0.0, p
+    extra = {
+        h: values[:, j]
+        for h, j in idx.items()
+        if h not in requested and np.all(np.isfinite(values[:, j]))
+    }
+    exp = Experiment(
+        t=t,
+        u=values[:, [idx[n] for n in inputs]] if inputs else np.zeros((len(t), 0)),
+        y=values[:, [idx[n] for n in outputs]] if outputs else np.zeros((len(t), 0)),
+        name=path.stem,
+        extra=extra,
+    )
+    return exp, dt, []
+
+
+def write_csv(path: str | Path, columns: dict[str, FloatArray]) -> Path:
+    """Write named columns (equal length) as CSV with full float precision."""
+    path = Path(path)
+    names = list(columns)
+    data = np.column_stack([np.asarray(columns[n], dtype=float) for n in names])
+    with path.open("w", newline="", encoding="utf-8") as fh:
+        fh.write(",".join(names) + "\n")
+        np.savetxt(fh, data, delimiter=",", fmt="%.17g")
+    return path

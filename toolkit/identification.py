@@ -1,0 +1,92 @@
+"""Helpers shared by identifier plugins: signals, provenance, training fit."""
+
+from __future__ import annotations
+
+import dataclasses
+from importlib import metadata
+from typing import Any
+
+import numpy as np
+from tendonkit.dataset import Dataset
+from tendonkit.errors import DataError
+from tendonkit.metrics import fit
+from tendonkit.schema import Model, Provenance, Representation, Signal
+
+
+def signals(names: tuple[str, ...], units: dict[str, str]) -> tuple[Signal, ...]:
+    """Signals for names, with the dataset's units where known."""
+    return tuple(Signal(n, units.get(n, "")) for n in names)
+
+
+def options_dict(options: Any) -> dict[str, Any]:
+    """The options object as JSON-compatible data (tuples become lists)."""
+    out = {}
+    for f in dataclasses.fields(options):
+        v = getattr(options, f.name)
+        out[f.name] = list(v) if isinstance(v, tuple) else v
+    return out
+
+
+def _version(plugin_module: str) -> str:
+    top = plugin_module.split(".")[0]
+    try:
+        return metadata.version(top)
+    except metadata.PackageNotFoundError:
+        return "unknown"
+
+
+def build_model(
+    options: Any,
+    dataset: Dataset,
+    representation: Representation,
+    *,
+    states: tuple[Signal, ...] = (),
+    notes: str = "",
+    name: str | None = None,
+) -> Model:
+    """Wrap a representation into a :class:`Model` with provenance and its training fit.
+
+    The training fit is the free-run simulation fit (initial state estimated) on the
+    training data, mean over experiments weighted by length, per output.
+    """
+    model = Model(
+        name=name or f"{options.name} model",
+        dt=dataset.dt,
+        inputs=signals(dataset.inputs, dataset.units),
+        outputs=signals(dataset.outputs, dataset.units),
+        states=states,
+        representation=representation,
+        provenance=Provenance(
+            identifier=options.name,
+            version=_version(type(options).__module__),
+            options=options_dict(options),
+            dataset_hash=dataset.hash(),
+            notes=notes,
+        ),
+    )
+    return model.replace(
+        provenance=dataclasses.replace(model.provenance, training_fit=training_fit(model, dataset))
+    )
+
+
+def training_fit(model: Model, dataset: Dataset) -> dict[str, float]:
+    """Free-run fit per output over all experiments of ``dataset`` (initial state estimated)."""
+    from tendonkit.simulate import simulate_dataset
+
+    sims = simulate_dataset(model, dataset, initial="estimate")
+    y = np.vstack([e.y for e in dataset.experiments])
+    f = fit(y, np.vstack(sims))
+    return {name: float(v) if np.isfinite(v) else -1e300 for name, v in zip(model.output_names, f)}
+
+
+def require_samples(dataset: Dataset, needed: int, why: str) -> None:
+    """Raise :class:`DataError` if an experiment is shorter than ``needed`` samples."""
+    short = [e for e in dataset.experiments if e.n_samples < needed]
+    if short:
+        raise DataError(
+            f"Too few samples for {why}:",
+            [
+                f"experiment {e.name or '#'} has {e.n_samples} samples; {needed} are needed."
+                for e in short
+            ],
+        )

@@ -1,0 +1,106 @@
+"""Exact state-space realisations of the linear representations (for MPC, FMUs, python-control)."""
+
+from __future__ import annotations
+
+import numpy as np
+from tendonkit.errors import SchemaError
+from tendonkit.schema import ARX, Model, StateSpace
+
+
+def arx_lag_matrices(rep: ARX, nu: int) -> list[np.ndarray]:
+    """Input coefficients per lag ``G_l`` so that ``y[k] += sum_l G_l u[k-l]`` (delays folded in)."""
+    ny = rep.A[0].shape[0] if rep.A else rep.B[0].shape[0]
+    nk = list(rep.nk)
+    length = (max(nk) if nk else 0) + rep.nb
+    G = [np.zeros((ny, nu)) for _ in range(max(length, 1))]
+    for j, Bj in enumerate(rep.B):
+        for m in range(nu):
+            G[j + nk[m]][:, m] = Bj[:, m]
+    return G
+
+
+def arx_to_state_space(rep: ARX, nu: int) -> StateSpace:
+    """Shift-register realisation of an ARX model (non-minimal, exact).
+
+    The state is ``[y[k-1], ..., y[k-na], u[k-1], ..., u[k-L]]``; ``y[k] = C x[k] + D u[k]``.
+    An ``offset`` or nonlinear ``terms`` cannot be realised and raise :class:`SchemaError`.
+    """
+    if rep.terms:
+        raise SchemaError("An ARX model with nonlinear terms has no linear state-space form.")
+    if rep.offset is not None and np.any(rep.offset != 0):
+        raise SchemaError("An ARX model with a non-zero offset is affine, not linear.")
+    G = arx_lag_matrices(rep, nu)
+    ny = G[0].shape[0]
+    na, L = rep.na, len(G) - 1
+    n = ny * na + nu * L
+    C = np.zeros((ny, n))
+    for i, Ai in enumerate(rep.A):
+        C[:, i * ny : (i + 1) * ny] = -Ai
+    for lag in range(1, L + 1):
+        C[:, ny * na + (lag - 1) * nu : ny * na + lag * nu] = G[lag]
+    D = G[0].copy()
+    A = np.zeros((n, n))
+    B = np.zeros((n, nu))
+    if na:
+        A[:ny, :] = C  # new y[k] becomes the first output block
+        B[:ny, :] = D
+        A[ny : ny * na, : ny * (na - 1)] = np.eye(ny * (na - 1))
+    if L:
+        off = ny * na
+        B[off : off + nu, :] = np.eye(nu)
+        A[off + nu : off + nu * L, off : off + nu * (L - 1)] = np.eye(nu * (L - 1))
+    return StateSpace(A=A, B=B, C=C, D=D)
+
+
+def add_input_delays(ss: StateSpace, delays: list[int]) -> StateSpace:
+    """Prepend integer input delays (samples per input) as shift-register states."""
+    nu = ss.B.shape[1]
+    total = sum(delays)
+    if total == 0:
+        return ss
+    n = ss.A.shape[0]
+    # delay states: for input m, chain of delays[m] registers; last register feeds the plant.
+    Ad = np.zeros((total, total))
+    Bd = np.zeros((total, nu))
+    Cd = np.zeros((nu, total))  # delayed input as function of delay state
+    Dd = np.zeros((nu, nu))
+    pos = 0
+    for m, d in enumerate(delays):
+        if d == 0:
+            Dd[m, m] = 1.0
+            continue
+        Bd[pos, m] = 1.0
+        for r in range(1, d):
+            Ad[pos + r, pos + r - 1] = 1.0
+        Cd[m, pos + d - 1] = 1.0
+        pos += d
+    A = np.block([[ss.A, ss.B @ Cd], [np.zeros((total, n)), Ad]])
+    B = np.vstack([ss.B @ Dd, Bd])
+    C = np.hstack([ss.C, ss.D @ Cd])
+    D = ss.D @ Dd
+    x0 = None if ss.x0 is None else np.concatenate([ss.x0, np.zeros(total)])
+    return StateSpace(A=A, B=B, C=C, D=D, x0=x0)
+
+
+def to_state_space(model: Model) -> StateSpace:
+    """Linear state-space form of a linear model, input delay blocks included.
+
+    Raises
+    ------
+    SchemaError
+        If the model is nonlinear (``sparse_map``, nonlinear terms or non-delay blocks).
+    """
+    if not model.is_linear:
+        raise SchemaError(f"Model {model.name!r} is nonlinear and has no state-space form.")
+    rep = model.representation
+    nu = len(model.inputs)
+    if isinstance(rep, StateSpace):
+        ss = rep
+    elif isinstance(rep, ARX):
+        ss = arx_to_state_space(rep, nu)
+    else:  # pragma: no cover - is_linear excludes it
+        raise SchemaError(f"{rep.kind} has no state-space form.")
+    delays = [0] * nu
+    for b in model.input_blocks:
+        delays[model.input_names.index(b.signal)] += int(b.params["samples"])
+    return add_input_delays(ss, delays)

@@ -1,0 +1,518 @@
+"""Free-run simulation and k-step-ahead prediction for every representation of the schema.
+
+Initial-state policy (``initial=``):
+
+- ``"zero"``: every state and every pre-sample signal is zero;
+- ``"model"``: the model's stored ``x0`` (zero when it has none);
+- ``"estimate"`` (default when measured outputs are given): state space: least-squares fit of
+  ``x0`` to the first ``max(10·n, 50)`` samples; ARX and sparse maps: the first samples of the
+  measured outputs seed the recursion (the simulated output equals the measurement there);
+- an array: the initial state itself (``state_space``, ``sparse_map``).
+
+Input blocks are applied to the input sequence before the dynamics, output blocks to the
+simulated outputs after them.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+from tendonkit.dataset import Dataset
+from tendonkit.errors import DataError, SimulationError
+from tendonkit.schema import ARX, Block, Model, SparseMap, StateSpace
+from tendonkit.terms import CompiledTerms
+
+FloatArray = NDArray[np.float64]
+Initial = Literal["zero", "model", "estimate"] | FloatArray
+
+
+def apply_block(block: Block, s: FloatArray) -> FloatArray:
+    """Apply one block to a signal sequence ``s`` (n,) and return the new sequence."""
+    p = block.params
+    if block.kind == "delay":
+        d = int(p["samples"])
+        if d == 0:
+            return s.copy()
+        return np.concatenate([np.full(min(d, len(s)), s[0]), s[: max(len(s) - d, 0)]])
+    if block.kind == "dead_zone":
+        c, th = p["center"], p["threshold"]
+        z = s - c
+        return np.sign(z) * np.maximum(np.abs(z) - th, 0.0) + c
+    if block.kind == "saturation":
+        return np.clip(s, p["lower"], p["upper"])
+    if block.kind == "play":
+        return play_operator(s, p["width"])
+    if block.kind == "first_order_lag":
+        from scipy.signal import lfilter
+
+        a = p["pole"]
+        out = lfilter([0.0, 1.0 - a], [1.0, -a], s - s[0]) + s[0]
+        return np.asarray(out)
+    raise SimulationError(f"Unknown block kind {block.kind!r}.")  # pragma: no cover
+
+
+def play_operator(s: FloatArray, width: float, start: float | None = None) -> FloatArray:
+    """Backlash (play) operator of half-width ``width``: output follows when pushed past the gap."""
+    out = np.empty_like(s, dtype=float)
+    v = s[0] if start is None else start
+    lo, hi = -width, width
+    for k, x in enumerate(s):
+        if x - v > hi:
+            v = x - hi
+        elif x - v < lo:
+            v = x - lo
+        out[k] = v
+    return out
+
+
+def _apply_blocks(blocks: tuple[Block, ...], names: list[str], arr: FloatArray) -> FloatArray:
+    if not blocks:
+        return arr
+    out = arr.copy()
+    for b in blocks:
+        j = names.index(b.signal)
+        out[:, j] = apply_block(b, out[:, j])
+    return out
+
+
+def _check_u(model: Model, u: Any, y: Any) -> tuple[FloatArray, FloatArray | None]:
+    u = np.asarray(u, dtype=float)
+    if u.ndim == 1 and len(model.inputs) == 1:
+        u = u[:, None]
+    problems = []
+    if u.ndim != 2 or u.shape[1] != len(model.inputs):
+        problems.append(
+            f"inputs must have shape (n_samples, {len(model.inputs)}) for {model.input_names}; "
+            f"found {u.shape}."
+        )
+    if y is not None:
+        y = np.asarray(y, dtype=float)
+        if y.ndim == 1 and len(model.outputs) == 1:
+            y = y[:, None]
+        if y.ndim != 2 or y.shape[1] != len(model.outputs) or y.shape[0] != u.shape[0]:
+            problems.append(
+                f"measured outputs must have shape ({u.shape[0]}, {len(model.outputs)}); "
+                f"found {y.shape}."
+            )
+    if u.size and not np.all(np.isfinite(u)):
+        problems.append("inputs contain NaN or infinite values.")
+    if problems:
+        raise DataError(f"Cannot simulate model {model.name!r}:", problems)
+    return u, y
+
+
+def simulate(
+    model: Model,
+    u: FloatArray,
+    *,
+    y: FloatArray | None = None,
+    initial: Initial | None = None,
+) -> FloatArray:
+    """Free-run simulation of ``model`` driven by inputs ``u`` (n, nu).
+
+    Parameters
+    ----------
+    model : Model
+        Any representation.
+    u : array (n, nu)
+        Inputs, columns in the order of ``model.inputs``.
+    y : array (n, ny), optional
+        Measured outputs, used only by ``initial="estimate"``.
+    initial : {"zero", "model", "estimate"} or array, optional
+        Initial-state policy (module docstring).  Default: ``"estimate"`` when ``y`` is given,
+        otherwise ``"model"``.
+
+    Returns
+    -------
+    array (n, ny)
+        Simulated outputs.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from tendonkit.schema import Model, Signal, StateSpace
+    >>> m = Model("m", 1.0, (Signal("u"),), (Signal("y"),),
+    ...           StateSpace(np.array([[0.5]]), np.array([[1.0]]), np.array([[1.0]]), np.zeros((1, 1))))
+    >>> simulate(m, np.ones((3, 1)))[:, 0].tolist()
+    [0.0, 1.0, 1.5]
+    """
+    u, y = _check_u(model, u, y)
+    if initial is None:
+        initial = "estimate" if y is not None else "model"
+    if isinstance(initial, str) and initial == "estimate" and y is None:
+        raise DataError("initial='estimate' needs the measured outputs y.")
+    if isinstance(initial, str) and initial not in ("zero", "model", "estimate"):
+        raise DataError(
+            f"initial must be 'zero', 'model', 'estimate' or an array, found {initial!r}."
+        )
+    ub = _apply_blocks(model.input_blocks, model.input_names, u)
+    rep = model.representation
+    if isinstance(rep, StateSpace):
+        ys = _sim_ss(rep, ub, y, initial)
+    elif isinstance(rep, ARX):
+        ys = _sim_arx(model, rep, ub, y, initial)
+    else:
+        ys = _sim_sparse(model, rep, ub, y, initial)
+    if not np.all(np.isfinite(ys)):
+        bad = int(np.argmax(~np.all(np.isfinite(ys), axis=1)))
+        ys[bad:] = np.nan
+    return _apply_blocks(model.output_blocks, model.output_names, ys)
+
+
+def simulate_dataset(
+    model: Model, data: Dataset, *, initial: Initial | None = "estimate"
+) -> list[FloatArray]:
+    """Simulate every experiment of ``data`` (inputs selected by the model's input names)."""
+    data = _aligned(model, data)
+    return [simulate(model, e.u, y=e.y, initial=initial) for e in data.experiments]
+
+
+def _aligned(model: Model, data: Dataset) -> Dataset:
+    """The dataset with the model's inputs and outputs in the model's order."""
+    missing = [n for n in (*model.input_names, *model.output_names) if n not in data.columns]
+    if missing:
+        raise DataError(
+            f"The data lack signals of model {model.name!r}: {', '.join(missing)}. "
+            f"Columns: {', '.join(data.columns)}."
+        )
+    if (tuple(model.input_names), tuple(model.output_names)) == (data.inputs, data.outputs):
+        return data
+    return data.select(model.input_names, model.output_names)
+
+
+# -- state space --------------------------------------------------------------------------------
+
+
+def _sim_ss(rep: StateSpace, u: FloatArray, y: FloatArray | None, initial: Initial) -> FloatArray:
+    n = rep.n_states
+    if isinstance(initial, np.ndarray) or not isinstance(initial, str):
+        x0 = np.asarray(initial, dtype=float).reshape(n)
+    elif initial == "zero":
+        x0 = np.zeros(n)
+    elif initial == "model":
+        x0 = np.zeros(n) if rep.x0 is None else rep.x0
+    else:
+        assert y is not None
+        x0 = estimate_x0(rep, u, y)
+    return ss_response(rep.A, rep.B, rep.C, rep.D, u, x0)
+
+
+def ss_response(
+    A: FloatArray, B: FloatArray, C: FloatArray, D: FloatArray, u: FloatArray, x0: FloatArray
+) -> FloatArray:
+    """Outputs of ``x+ = Ax + Bu, y = Cx + Du`` from ``x0`` (loop over samples)."""
+    n, N = A.shape[0], u.shape[0]
+    X = np.empty((N, n))
+    x = np.asarray(x0, dtype=float).copy()
+    Bu = u @ B.T
+    At = A.T
+    for k in range(N):
+        X[k] = x
+        x = x @ At + Bu[k]
+    return X @ C.T + u @ D.T
+
+
+def estimate_x0(
+    rep: StateSpace, u: FloatArray, y: FloatArray, window: int | None = None
+) -> FloatArray:
+    """Least-squares initial state from the first ``window`` samples (default ``max(10 n, 50)``)."""
+    n = rep.n_states
+    N = min(u.shape[0], window or max(10 * n, 50))
+    forced = ss_response(rep.A, rep.B, rep.C, rep.D, u[:N], np.zeros(n))
+    ny = rep.C.shape[0]
+    obs = np.empty((N * ny, n))
+    M = rep.C.copy()
+    for k in range(N):
+        obs[k * ny : (k + 1) * ny] = M
+        M = M @ rep.A
+    x0, *_ = np.linalg.lstsq(obs, (y[:N] - forced).reshape(-1), rcond=None)
+    return np.asarray(x0)
+
+
+# -- ARX ------------------------------------------------------------------------------------------
+
+
+def arx_max_lag(rep: ARX, nu: int) -> int:
+    """Number of samples of history an ARX model needs."""
+    from tendonkit.realize import arx_lag_matrices
+
+    L = len(arx_lag_matrices(rep, nu)) - 1
+    return max(rep.na, L, max((t.max_lag for t in rep.terms), default=0), 1)
+
+
+def _arx_parts(model: Model, rep: ARX) -> tuple[FloatArray, list[FloatArray], FloatArray]:
+    from tendonkit.realize import arx_lag_matrices
+
+    ny, nu = len(model.outputs), len(model.inputs)
+    Acat = np.hstack(rep.A) if rep.A else np.zeros((ny, 0))
+    G = arx_lag_matrices(rep, nu) if rep.B else [np.zeros((ny, nu))]
+    off = np.zeros(ny) if rep.offset is None else rep.offset
+    return Acat, G, off
+
+
+def _key_values(
+    keys: tuple[tuple[str, int], ...], hist: dict[str, FloatArray], k: int
+) -> FloatArray:
+    return np.array([hist[name][k - lag] for name, lag in keys])
+
+
+def _sim_arx(
+    model: Model, rep: ARX, u: FloatArray, y: FloatArray | None, initial: Initial
+) -> FloatArray:
+    ny, nu = len(model.outputs), len(model.inputs)
+    N = u.shape[0]
+    Acat, G, off = _arx_parts(model, rep)
+    L = arx_max_lag(rep, nu)
+    # history buffers padded with L samples before t=0
+    Y = np.zeros((N + L, ny))
+    U = np.zeros((N + L, nu))
+    U[L:] = u
+    start = 0
+    if isinstance(initial, str) and initial == "estimate":
+        assert y is not None
+        start = min(L, N)
+        Y[L : L + start] = y[:start]
+        U[:L] = u[0]  # inputs before the record: held at the first sample
+        Y[:L] = y[0]
+    elif not isinstance(initial, str):
+        raise DataError("ARX models take initial='zero', 'model' or 'estimate', not an array.")
+    # Input contribution for every sample at once (the inputs are known).
+    forced = np.zeros((N, ny)) + off
+    for lag, Gl in enumerate(G):
+        if np.any(Gl):
+            forced += U[L - lag : L - lag + N] @ Gl.T
+    ct = CompiledTerms(rep.terms) if rep.terms else None
+    hist: dict[str, FloatArray] = {}
+    if ct is not None:
+        for j, name in enumerate(model.input_names):
+            hist[name] = U[:, j]
+        for j, name in enumerate(model.output_names):
+            hist[name] = Y[:, j]
+        # input-only terms can be computed in advance; output terms need the loop
+    na = rep.na
+    coef = rep.term_coefficients
+    for k in range(start, N):
+        kk = k + L
+        acc = forced[k].copy()
+        if na:
+            past = Y[kk - na : kk][::-1].reshape(-1)
+            acc -= Acat @ past
+        if ct is not None and coef is not None:
+            acc += ct.evaluate(_key_values(ct.keys, hist, kk)) @ coef
+        Y[kk] = acc
+    return Y[L:]
+
+
+# -- sparse map -----------------------------------------------------------------------------------
+
+
+def _sim_sparse(
+    model: Model, rep: SparseMap, u: FloatArray, y: FloatArray | None, initial: Initial
+) -> FloatArray:
+    nx = rep.n_states
+    N = u.shape[0]
+    ct = CompiledTerms(rep.terms)
+    L = max((t.max_lag for t in rep.terms), default=0) + 1
+    X = np.zeros((N + L, nx))
+    U = np.zeros((N + L, len(model.inputs)))
+    U[L:] = u
+    U[:L] = u[0] if N else 0.0
+    if isinstance(initial, str):
+        if initial == "zero":
+            x0 = np.zeros(nx)
+        elif initial == "model":
+            x0 = np.zeros(nx) if rep.x0 is None else rep.x0.copy()
+        else:
+            assert y is not None
+            x0 = np.zeros(nx) if rep.x0 is None else rep.x0.copy()
+            x0[list(rep.output_states)] = y[0]
+    else:
+        x0 = np.asarray(initial, dtype=float).reshape(nx)
+    X[: L + 1] = x0
+    hist: dict[str, FloatArray] = {}
+    for j, s in enumerate(model.states):
+        hist[s.name] = X[:, j]
+    for j, name in enumerate(model.input_names):
+        hist[name] = U[:, j]
+    coef = rep.coefficients
+    keys = ct.keys
+    for k in range(N - 1):
+        kk = k + L
+        vals = np.array([hist[name][kk - lag] for name, lag in keys])
+        X[kk + 1] = ct.evaluate(vals) @ coef
+        if not np.all(np.isfinite(X[kk + 1])):
+            X[kk + 1 :] = np.nan
+            break
+    return X[L:, list(rep.output_states)]
+
+
+# -- k-step-ahead prediction ----------------------------------------------------------------------
+
+
+def predict(model: Model, u: FloatArray, y: FloatArray, k: int = 1) -> FloatArray:
+    """k-step-ahead prediction ``ŷ(t | t-k)`` from measured inputs and outputs.
+
+    State-space models run a steady-state Kalman predictor (the model's ``K`` when it has one,
+    otherwise the gain for unit process and measurement noise) and propagate it ``k-1`` steps.
+    ARX and sparse maps are iterated ``k`` times from the measured history.  The first ``k``
+    samples (and the model's history length) repeat the measurement.
+
+    Parameters
+    ----------
+    model : Model
+        Any representation without output blocks.
+    u, y : array
+        Measured inputs (n, nu) and outputs (n, ny).
+    k : int
+        Prediction horizon in samples, >= 1.
+    """
+    u, y_checked = _check_u(model, u, y)
+    assert y_checked is not None
+    y = y_checked
+    if k < 1:
+        raise DataError(f"The prediction horizon k must be >= 1, found {k}.")
+    ub = _apply_blocks(model.input_blocks, model.input_names, u)
+    rep = model.representation
+    if isinstance(rep, StateSpace):
+        return _predict_ss(rep, ub, y, k)
+    return _predict_recursive(model, ub, y, k)
+
+
+def _predict_ss(rep: StateSpace, u: FloatArray, y: FloatArray, k: int) -> FloatArray:
+    A, B, C, D = rep.A, rep.B, rep.C, rep.D
+    K = rep.K if rep.K is not None else fitted_kalman_gain(rep, u, y)
+    N = u.shape[0]
+    Xp = _one_step_states(rep, K, u, y)
+    # x̂(t | t-k): start at x̂(t-k+1 | t-k) and propagate k-1 steps with known inputs.
+    out = y.copy()
+    for t in range(k - 1, N):
+        x = Xp[t - k + 1]
+        for j in range(t - k + 1, t):
+            x = A @ x + B @ u[j]
+        out[t] = C @ x + D @ u[t]
+    return out
+
+
+def _one_step_states(rep: StateSpace, K: FloatArray, u: FloatArray, y: FloatArray) -> FloatArray:
+    """``Xp[t] = x̂(t | t-1)`` of the predictor with gain ``K``, for t = 0..N."""
+    A, B, C, D = rep.A, rep.B, rep.C, rep.D
+    N = u.shape[0]
+    Xp = np.empty((N + 1, rep.n_states))
+    Xp[0] = estimate_x0(rep, u, y)
+    AK, BK = A - K @ C, B - K @ D
+    for t in range(N):
+        Xp[t + 1] = AK @ Xp[t] + BK @ u[t] + K @ y[t]
+    return Xp
+
+
+def fitted_kalman_gain(
+    rep: StateSpace, u: FloatArray, y: FloatArray, max_samples: int = 5000
+) -> FloatArray:
+    """Predictor gain for a model without a noise model, chosen from the data.
+
+    The gain solves the Kalman DARE with ``Q = q I`` and ``R = I``; ``q`` is picked from a
+    log grid (1e-8 .. 1e2) by the one-step prediction error on the first ``max_samples``
+    samples.  Pure output noise selects ``q -> 0`` (the predictor then trusts the model),
+    unmodelled disturbances select larger ``q``.
+    """
+    n, ny = rep.n_states, rep.C.shape[0]
+    uu, yy = u[:max_samples], y[:max_samples]
+    best, best_err = np.zeros((n, ny)), np.inf
+    for q in (1e-8, 1e-6, 1e-4, 1e-2, 1.0, 1e2):
+        try:
+            K = kalman_gain(rep.A, rep.C, q * np.eye(n), np.eye(ny))
+        except SimulationError:
+            continue
+        Xp = _one_step_states(rep, K, uu, yy)[:-1]
+        err = float(np.mean((yy - Xp @ rep.C.T - uu @ rep.D.T) ** 2))
+        if err < best_err:
+            best, best_err = K, err
+    return best
+
+
+def kalman_gain(
+    A: FloatArray, C: FloatArray, Q: FloatArray | None = None, R: FloatArray | None = None
+) -> FloatArray:
+    """Steady-state predictor gain for ``x+ = Ax + w``, ``y = Cx + v`` (unit covariances by default)."""
+    from scipy.linalg import solve_discrete_are
+
+    n, ny = A.shape[0], C.shape[0]
+    Q = np.eye(n) if Q is None else Q
+    R = np.eye(ny) if R is None else R
+    try:
+        P = solve_discrete_are(A.T, C.T, Q, R)
+    except (np.linalg.LinAlgError, ValueError) as exc:
+        raise SimulationError(f"No steady-state Kalman gain for this model: {exc}") from None
+    return np.asarray(A @ P @ C.T @ np.linalg.inv(C @ P @ C.T + R))
+
+
+def _predict_recursive(model: Model, u: FloatArray, y: FloatArray, k: int) -> FloatArray:
+    """Iterate one-step predictions: pass j uses predictions of pass j-i at lag i < j."""
+    rep = model.representation
+    passes = [y]  # passes[0] = measurement
+    for j in range(1, k + 1):
+        passes.append(_one_pass(model, rep, u, passes, j))
+    return passes[k].copy()
+
+
+def _one_pass(
+    model: Model, rep: Any, u: FloatArray, passes: list[FloatArray], j: int
+) -> FloatArray:
+    """Prediction ``ŷ(t | t-j)`` for every t, vectorised over t."""
+    N = u.shape[0]
+
+    def past_y(lag: int) -> FloatArray:
+        src = passes[j - lag] if lag < j else passes[0]
+        out = np.empty_like(src)
+        out[lag:] = src[: N - lag]
+        out[:lag] = passes[0][0]
+        return out
+
+    def past_u(lag: int) -> FloatArray:
+        out = np.empty_like(u)
+        out[lag:] = u[: N - lag]
+        out[:lag] = u[0]
+        return out
+
+    if isinstance(rep, ARX):
+        _, G, off = _arx_parts(model, rep)
+        pred = np.zeros_like(passes[0]) + off
+        for i, Ai in enumerate(rep.A, start=1):
+            pred -= past_y(i) @ Ai.T
+        for lag, Gl in enumerate(G):
+            if np.any(Gl):
+                pred += past_u(lag) @ Gl.T
+        if rep.terms and rep.term_coefficients is not None:
+            ct = CompiledTerms(rep.terms)
+            vals = []
+            for name, lag in ct.keys:
+                if name in model.output_names:
+                    vals.append(past_y(lag)[:, model.output_names.index(name)])
+                else:
+                    vals.append(past_u(lag)[:, model.input_names.index(name)])
+            pred += ct.evaluate(np.array(vals)).T @ rep.term_coefficients
+        L = arx_max_lag(rep, len(model.inputs))
+        pred[:L] = passes[0][:L]
+        return pred
+    assert isinstance(rep, SparseMap)
+    ct = CompiledTerms(rep.terms)
+    states = [s.name for s in model.states]
+    full_states = len(rep.output_states) == rep.n_states
+    if not full_states:
+        raise SimulationError(
+            "k-step prediction of a sparse_map needs every state measured (states = outputs)."
+        )
+    vals = []
+    for name, lag in ct.keys:
+        if name in states:
+            col = list(rep.output_states).index(states.index(name))
+            vals.append(past_y(lag + 1)[:, col])
+        else:
+            vals.append(past_u(lag + 1)[:, model.input_names.index(name)])
+    X = ct.evaluate(np.array(vals)).T @ rep.coefficients
+    pred = X[:, list(rep.output_states)]
+    L = max((t.max_lag for t in rep.terms), default=0) + 1
+    pred[:L] = passes[0][:L]
+    return pred

@@ -1,0 +1,419 @@
+"""Structured nonlinear terms: the vocabulary of ``sparse_map`` models and model extensions.
+
+A :class:`Term` is a product of :class:`Factor` objects; each factor applies one function from
+a closed set to one named signal, possibly delayed (``lag``) or differenced (``diff``).  Terms
+are plain data, so a model file that contains them can be loaded without evaluating any code,
+and their derivatives are known in closed form (used by nonlinear MPC).
+
+Examples
+--------
+>>> import numpy as np
+>>> t = Term((Factor("x1", power=2), Factor("u1")))
+>>> t.label
+'x1^2*u1'
+>>> get = series_getter({"x1": np.array([2.0]), "u1": np.array([3.0])})
+>>> float(t.evaluate(get)[0])
+12.0
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from tendonkit.errors import SchemaError
+
+#: The closed set of functions a factor may apply (``z`` is the scaled, shifted signal).
+FUNCTIONS: dict[str, str] = {
+    "pow": "z**power",
+    "sin": "sin(z)",
+    "cos": "cos(z)",
+    "tanh": "tanh(z)",
+    "sign": "sign(z)",
+    "abs": "|z|",
+    "dead_zone": "sign(z)*max(|z|-param, 0)",
+    "sat": "clip(z, -param, param)",
+    "relu": "max(z-param, 0)",
+}
+
+_FN_CODES = {name: i for i, name in enumerate(FUNCTIONS)}
+FloatArray = NDArray[np.float64]
+#: ``get(name, lag)`` returns signal ``name`` delayed by ``lag`` samples.
+Getter = Callable[[str, int], Any]
+
+
+@dataclass(frozen=True)
+class Factor:
+    """One factor ``fn((s[k-lag] - offset) * scale)`` of a term.
+
+    Parameters
+    ----------
+    signal : str
+        Name of a model state, output or input.
+    fn : str
+        One of :data:`FUNCTIONS`.
+    power : int
+        Exponent for ``fn="pow"`` (ignored otherwise), >= 1.
+    lag : int
+        Delay in samples, >= 0.
+    diff : int
+        0 for the signal itself, 1 for its first difference ``s[k-lag] - s[k-lag-1]``.
+    scale, offset : float
+        Affine normalisation applied before ``fn``.
+    param : float
+        Width of a dead zone, level of a saturation, knee of a relu.
+    """
+
+    signal: str
+    fn: str = "pow"
+    power: int = 1
+    lag: int = 0
+    diff: int = 0
+    scale: float = 1.0
+    offset: float = 0.0
+    param: float = 0.0
+
+    @property
+    def label(self) -> str:
+        """Readable form, e.g. ``sin(x1)`` or ``u2[k-3]^2``."""
+        name = self.signal if self.lag == 0 else f"{self.signal}[k-{self.lag}]"
+        if self.diff:
+            name = f"Δ{name}"
+        if self.scale != 1.0 or self.offset != 0.0:
+            name = (
+                f"({name}-{self.offset:g})*{self.scale:g}"
+                if self.offset
+                else f"{self.scale:g}*{name}"
+            )
+        if self.fn == "pow":
+            return name if self.power == 1 else f"{name}^{self.power}"
+        if self.fn in ("dead_zone", "sat", "relu"):
+            return f"{self.fn}({name};{self.param:g})"
+        return f"{self.fn}({name})"
+
+    @property
+    def max_lag(self) -> int:
+        """Oldest sample this factor reads, in samples back from ``k``."""
+        return self.lag + self.diff
+
+    def _z(self, get: Getter) -> FloatArray:
+        s = np.asarray(get(self.signal, self.lag), dtype=float)
+        if self.diff:
+            s = s - np.asarray(get(self.signal, self.lag + 1), dtype=float)
+        return (s - self.offset) * self.scale
+
+    def value(self, z: FloatArray) -> FloatArray:
+        """Apply the function to the normalised signal ``z``."""
+        return _apply(
+            _FN_CODES[self.fn],
+            np.asarray(z, dtype=float),
+            np.asarray(float(self.power)),
+            np.asarray(self.param),
+            deriv=False,
+        )
+
+    def derivative(self, z: FloatArray) -> FloatArray:
+        """Derivative of :meth:`value` with respect to ``z`` (almost everywhere for kinks)."""
+        return _apply(
+            _FN_CODES[self.fn],
+            np.asarray(z, dtype=float),
+            np.asarray(float(self.power)),
+            np.asarray(self.param),
+            deriv=True,
+        )
+
+    def evaluate(self, get: Getter) -> FloatArray:
+        """Evaluate with ``get(name, lag)`` returning the signal ``name`` delayed by ``lag``."""
+        return self.value(self._z(get))
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain-data form; defaults are left out to keep files short."""
+        out: dict[str, Any] = {"signal": self.signal, "fn": self.fn}
+        for key, default in (
+            ("power", 1),
+            ("lag", 0),
+            ("diff", 0),
+            ("scale", 1.0),
+            ("offset", 0.0),
+            ("param", 0.0),
+        ):
+            val = getattr(self, key)
+            if val != default:
+                out[key] = val
+        return out
+
+
+def series_getter(signals: Mapping[str, FloatArray]) -> Getter:
+    """Accessor over whole time series: ``get(name, lag)[k] = signals[name][k - lag]``.
+
+    Samples before the start repeat the first sample (edge padding); callers that need exact
+    regressors discard the first :attr:`Term.max_lag` rows.
+    """
+
+    def get(name: str, lag: int) -> FloatArray:
+        s = np.asarray(signals[name], dtype=float)
+        if lag == 0:
+            return s
+        if lag >= s.shape[0]:
+            return np.full_like(s, s[0])
+        return np.concatenate([np.full(lag, s[0]), s[:-lag]])
+
+    return get
+
+
+@dataclass(frozen=True)
+class Term:
+    """A product of factors; the empty product is the constant 1."""
+
+    factors: tuple[Factor, ...] = field(default_factory=tuple)
+
+    @property
+    def label(self) -> str:
+        """Readable form such as ``x1*u2`` or ``1``."""
+        return "*".join(f.label for f in self.factors) if self.factors else "1"
+
+    @property
+    def max_lag(self) -> int:
+        """Oldest sample any factor reads."""
+        return max((f.max_lag for f in self.factors), default=0)
+
+    @property
+    def signals(self) -> set[str]:
+        """Names of the signals this term reads."""
+        return {f.signal for f in self.factors}
+
+    def evaluate(self, get: Getter, shape: tuple[int, ...] = ()) -> FloatArray:
+        """Evaluate the product; ``shape`` is used for the constant term."""
+        out: FloatArray | float = 1.0
+        for f in self.factors:
+            out = out * f.evaluate(get)
+        if isinstance(out, float):
+            return np.ones(shape)
+        return np.asarray(out)
+
+    def gradient(self, get: Getter) -> dict[str, FloatArray]:
+        """Partial derivatives with respect to the current (lag 0, undifferenced) signals.
+
+        Returns a mapping ``signal name -> dTerm/dsignal[k]``.  Factors on delayed signals are
+        constants here; a differenced factor depends on ``s[k]`` with derivative ``+1 * scale``.
+        """
+        values = [f.evaluate(get) for f in self.factors]
+        grads: dict[str, FloatArray] = {}
+        for i, f in enumerate(self.factors):
+            if f.lag != 0:
+                continue
+            dz = f.derivative(f._z(get)) * f.scale
+            rest: FloatArray | float = 1.0
+            for j, v in enumerate(values):
+                if j != i:
+                    rest = rest * v
+            g = np.asarray(dz * rest)
+            grads[f.signal] = grads[f.signal] + g if f.signal in grads else g
+        return grads
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain-data form."""
+        return {"factors": [f.to_dict() for f in self.factors]}
+
+
+def term_matrix(terms: Sequence[Term], get: Getter, n: int) -> FloatArray:
+    """Evaluate every term and stack the results as columns, shape ``(n, n_terms)``."""
+    out = np.empty((n, len(terms)))
+    for j, t in enumerate(terms):
+        out[:, j] = np.broadcast_to(t.evaluate(get, (n,)), (n,))
+    return out
+
+
+_FACTOR_KEYS = {"signal", "fn", "power", "lag", "diff", "scale", "offset", "param"}
+
+
+def factor_from_dict(data: Any, where: str, problems: list[str]) -> Factor | None:
+    """Parse a factor, appending every problem found to ``problems``."""
+    if not isinstance(data, dict):
+        problems.append(f"{where}: expected an object, found {type(data).__name__}.")
+        return None
+    unknown = set(data) - _FACTOR_KEYS
+    if unknown:
+        problems.append(f"{where}: unknown keys {sorted(unknown)}; allowed {sorted(_FACTOR_KEYS)}.")
+    ok = True
+    signal = data.get("signal")
+    if not isinstance(signal, str) or not signal:
+        problems.append(f"{where}.signal: expected a signal name, found {signal!r}.")
+        ok = False
+    fn = data.get("fn", "pow")
+    if fn not in FUNCTIONS:
+        problems.append(f"{where}.fn: {fn!r} is not one of {sorted(FUNCTIONS)}.")
+        ok = False
+    ints = {}
+    for key, default, low in (("power", 1, 1), ("lag", 0, 0), ("diff", 0, 0)):
+        val = data.get(key, default)
+        if isinstance(val, bool) or not isinstance(val, int) or val < low:
+            problems.append(f"{where}.{key}: expected an integer >= {low}, found {val!r}.")
+            ok = False
+        else:
+            ints[key] = val
+    if ints.get("diff", 0) > 1:
+        problems.append(f"{where}.diff: only 0 or 1 is supported, found {ints['diff']}.")
+        ok = False
+    floats: dict[str, float] = {}
+    for key, fdefault in (("scale", 1.0), ("offset", 0.0), ("param", 0.0)):
+        val = data.get(key, fdefault)
+        if isinstance(val, bool) or not isinstance(val, int | float) or not np.isfinite(val):
+            problems.append(f"{where}.{key}: expected a finite number, found {val!r}.")
+            ok = False
+        else:
+            floats[key] = float(val)
+    if not ok:
+        return None
+    return Factor(signal=signal, fn=fn, **ints, **floats)  # type: ignore[arg-type]
+
+
+def term_from_dict(data: Any, where: str, problems: list[str]) -> Term | None:
+    """Parse a term, appending every problem found to ``problems``."""
+    if not isinstance(data, dict) or not isinstance(data.get("factors", None), list):
+        problems.append(f"{where}: expected an object with a 'factors' list.")
+        return None
+    factors = [
+        factor_from_dict(f, f"{where}.factors[{i}]", problems)
+        for i, f in enumerate(data["factors"])
+    ]
+    if any(f is None for f in factors):
+        return None
+    return Term(tuple(f for f in factors if f is not None))
+
+
+class CompiledTerms:
+    """Vectorised evaluator for a fixed list of terms.
+
+    The terms read a fixed set of *keys* ``(signal, lag)``; callers provide their values as an
+    array ``values`` of shape ``(n_keys, *batch)`` in the order of :attr:`keys`.  Evaluation
+    costs a handful of numpy calls whatever the number of terms, so simulators can call it once
+    per time step, and regression code once for a whole record (batch = samples).
+    """
+
+    def __init__(self, terms: Sequence[Term]) -> None:
+        self.terms = tuple(terms)
+        keys: set[tuple[str, int]] = set()
+        for t in self.terms:
+            for f in t.factors:
+                keys.add((f.signal, f.lag))
+                if f.diff:
+                    keys.add((f.signal, f.lag + 1))
+        self.keys: tuple[tuple[str, int], ...] = tuple(sorted(keys, key=lambda k: (k[1], k[0])))
+        index = {k: i for i, k in enumerate(self.keys)}
+        nt = len(self.terms)
+        mf = max((len(t.factors) for t in self.terms), default=0) or 1
+        self._cur = np.zeros((nt, mf), dtype=int)
+        self._prev = np.zeros((nt, mf), dtype=int)
+        self._hasdiff = np.zeros((nt, mf), dtype=bool)
+        self._active = np.zeros((nt, mf), dtype=bool)
+        self._code = np.full((nt, mf), -1, dtype=int)
+        self._power = np.ones((nt, mf))
+        self._scale = np.ones((nt, mf))
+        self._offset = np.zeros((nt, mf))
+        self._param = np.zeros((nt, mf))
+        for i, t in enumerate(self.terms):
+            for j, f in enumerate(t.factors):
+                self._cur[i, j] = index[(f.signal, f.lag)]
+                if f.diff:
+                    self._prev[i, j] = index[(f.signal, f.lag + 1)]
+                    self._hasdiff[i, j] = True
+                self._active[i, j] = True
+                self._code[i, j] = _FN_CODES[f.fn]
+                self._power[i, j] = f.power
+                self._scale[i, j] = f.scale
+                self._offset[i, j] = f.offset
+                self._param[i, j] = f.param
+        self._groups = {
+            code: np.nonzero(self._code == code) for code in np.unique(self._code) if code >= 0
+        }
+
+    @property
+    def n_terms(self) -> int:
+        """Number of terms."""
+        return len(self.terms)
+
+    def _z(self, values: FloatArray) -> FloatArray:
+        z = values[self._cur]
+        if self._hasdiff.any():
+            z = z - np.where(_expand(self._hasdiff, z), values[self._prev], 0.0)
+        return (z - _expand(self._offset, z)) * _expand(self._scale, z)
+
+    def evaluate(self, values: FloatArray) -> FloatArray:
+        """Term values, shape ``(n_terms, *batch)``."""
+        values = np.asarray(values, dtype=float)
+        batch = values.shape[1:]
+        if self.n_terms == 0:
+            return np.zeros((0, *batch))
+        z = self._z(values)
+        out = np.ones_like(z)
+        for code, idx in self._groups.items():
+            out[idx] = _apply(code, z[idx], self._power[idx], self._param[idx], deriv=False)
+        return np.prod(out, axis=1)
+
+    def jacobian(self, values: FloatArray) -> FloatArray:
+        """Derivatives of every term with respect to every key, shape ``(n_terms, n_keys, *batch)``.
+
+        Differenced factors contribute ``+scale`` to their current key and ``-scale`` to their
+        previous one.  ``sign`` and the kinks of ``abs``, ``dead_zone``, ``sat`` and ``relu``
+        use their derivative almost everywhere.
+        """
+        values = np.asarray(values, dtype=float)
+        batch = values.shape[1:]
+        nt, mf = self._cur.shape
+        jac = np.zeros((nt, len(self.keys), *batch))
+        if nt == 0:
+            return jac
+        z = self._z(values)
+        val = np.ones_like(z)
+        der = np.zeros_like(z)
+        for code, idx in self._groups.items():
+            val[idx] = _apply(code, z[idx], self._power[idx], self._param[idx], deriv=False)
+            der[idx] = _apply(code, z[idx], self._power[idx], self._param[idx], deriv=True)
+        for j in range(mf):
+            others = (
+                np.prod(np.delete(val, j, axis=1), axis=1) if mf > 1 else np.ones_like(val[:, 0])
+            )
+            d = der[:, j] * _expand(self._scale[:, j], der[:, j]) * others
+            rows = np.nonzero(self._active[:, j])[0]
+            for r in rows:
+                jac[r, self._cur[r, j]] += d[r]
+                if self._hasdiff[r, j]:
+                    jac[r, self._prev[r, j]] -= d[r]
+        return jac
+
+
+def _expand(a: FloatArray, like: FloatArray) -> FloatArray:
+    return a.reshape(a.shape + (1,) * (like.ndim - a.ndim))
+
+
+def _apply(
+    code: int, z: FloatArray, power: FloatArray, param: FloatArray, deriv: bool
+) -> FloatArray:
+    fn = list(FUNCTIONS)[code]
+    power = _expand(power, z)
+    param = _expand(param, z)
+    if fn == "pow":
+        return power * z ** (power - 1) if deriv else z**power
+    if fn == "sin":
+        return np.cos(z) if deriv else np.sin(z)
+    if fn == "cos":
+        return -np.sin(z) if deriv else np.cos(z)
+    if fn == "tanh":
+        return 1.0 - np.tanh(z) ** 2 if deriv else np.tanh(z)
+    if fn == "sign":
+        return np.zeros_like(z) if deriv else np.sign(z)
+    if fn == "abs":
+        return np.sign(z) if deriv else np.abs(z)
+    if fn == "dead_zone":
+        if deriv:
+            return (np.abs(z) > param).astype(float)
+        return np.sign(z) * np.maximum(np.abs(z) - param, 0.0)
+    if fn == "sat":
+        return (np.abs(z) < param).astype(float) if deriv else np.clip(z, -param, param)
+    if fn == "relu":
+        return (z > param).astype(float) if deriv else np.maximum(z - param, 0.0)
+    raise SchemaError(f"Unknown factor function {fn!r}.")  # pragma: no cover

@@ -17,6 +17,7 @@ from typing import ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
+
 from tendonkit.dataset import Dataset
 from tendonkit.errors import OptionError
 from tendonkit.hookspecs import hookimpl

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from tendonkit.dataset import Dataset, write_csv
 from tendonkit.testsystems import random_state_space, simulate_truth
 

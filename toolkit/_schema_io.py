@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+
 from tendonkit.errors import SchemaError
 from tendonkit.schema import (
     ARX,
@@ -31,7 +32,7 @@ _TOP_KEYS = {
     "provenance",
 }
 _REP_KEYS = {
-    "state_space": {"kind", "A", "B", "C", "D", "x0", "K"},
+    "state_space": {"kind", "A", "B", "C", "D", "x0", "K", "terms", "E"},
     "arx": {"kind", "A", "B", "nk", "offset", "terms", "term_coefficients"},
     "sparse_map": {"kind", "terms", "coefficients", "output_states", "x0"},
 }
@@ -155,9 +156,13 @@ def _representation(raw: Any, p: list[str]) -> StateSpace | ARX | SparseMap | No
         mats = {k: _required(raw, k, where, p) for k in "ABCD"}
         x0 = _matrix(raw.get("x0"), f"{where}.x0", p, 1)
         K = _matrix(raw.get("K"), f"{where}.K", p, 2)
+        sterms = _terms(raw.get("terms", []), f"{where}.terms", p)
+        E = _matrix(raw.get("E"), f"{where}.E", p, 2)
         if len(p) > n0:
             return None
-        return StateSpace(A=mats["A"], B=mats["B"], C=mats["C"], D=mats["D"], x0=x0, K=K)
+        return StateSpace(
+            A=mats["A"], B=mats["B"], C=mats["C"], D=mats["D"], x0=x0, K=K, terms=sterms, E=E
+        )
     if kind == "arx":
         A = _matrix_list(raw.get("A"), f"{where}.A", p)
         B = _matrix_list(raw.get("B"), f"{where}.B", p)

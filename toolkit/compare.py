@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
 from tendonkit.dataset import Dataset
 from tendonkit.errors import DataError
 from tendonkit.metrics import FitRow, fit, fit_table

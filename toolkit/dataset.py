@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
+
 from tendonkit.errors import DataError
 
 FloatArray = NDArray[np.float64]

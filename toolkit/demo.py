@@ -14,11 +14,12 @@ def run_identification_demo(
     Returns the :func:`tendonkit.compare.compare` result on validation data and writes the
     models and ``fit_table.json`` into ``out``.
     """
+    from tqdm import tqdm
+
     from tendonkit.cli import write_json
     from tendonkit.compare import compare, render_compare
     from tendonkit.manager import identifiers
     from tendonkit.testsystems import random_state_space, simulate_truth
-    from tqdm import tqdm
 
     out.mkdir(parents=True, exist_ok=True)
     truth = random_state_space(8, 4, 2, seed=0)

@@ -2,15 +2,37 @@
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import dataclasses
+from collections.abc import Iterator
 from importlib import metadata
 from typing import Any
 
 import numpy as np
+
 from tendonkit.dataset import Dataset
 from tendonkit.errors import DataError
 from tendonkit.metrics import fit
 from tendonkit.schema import Model, Provenance, Representation, Signal
+
+_SKIP_TRAINING_FIT: contextvars.ContextVar[bool] = contextvars.ContextVar(
+    "tendonkit_skip_training_fit", default=False
+)
+
+
+@contextlib.contextmanager
+def without_training_fit() -> Iterator[None]:
+    """Within this block, :func:`build_model` leaves ``training_fit`` empty.
+
+    ``diagnose`` re-identifies many candidate models that are scored on other data anyway;
+    skipping their training-fit simulation saves most of its time.
+    """
+    token = _SKIP_TRAINING_FIT.set(True)
+    try:
+        yield
+    finally:
+        _SKIP_TRAINING_FIT.reset(token)
 
 
 def signals(names: tuple[str, ...], units: dict[str, str]) -> tuple[Signal, ...]:
@@ -64,6 +86,8 @@ def build_model(
             notes=notes,
         ),
     )
+    if _SKIP_TRAINING_FIT.get():
+        return model
     return model.replace(
         provenance=dataclasses.replace(model.provenance, training_fit=training_fit(model, dataset))
     )

@@ -8,6 +8,7 @@ from importlib import metadata
 from typing import Any
 
 import pluggy
+
 from tendonkit import hookspecs
 from tendonkit.errors import PluginError
 from tendonkit.registry import EffectRegistry, IdentifierRegistry

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+
 from tendonkit.errors import DataError
 
 FloatArray = NDArray[np.float64]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+
 from tendonkit.errors import SchemaError
 from tendonkit.schema import ARX, Model, StateSpace
 

@@ -26,6 +26,7 @@ from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
+
 from tendonkit.errors import SchemaError
 from tendonkit.terms import Term
 
@@ -39,6 +40,7 @@ BLOCK_KINDS: dict[str, tuple[str, ...]] = {
     "saturation": ("lower", "upper"),
     "play": ("width",),
     "first_order_lag": ("pole",),
+    "rate_limit": ("rate",),
 }
 
 
@@ -60,7 +62,8 @@ class Block:
     - ``dead_zone``: ``threshold`` >= 0 around ``center``: ``v = sign(s-c)·max(|s-c|-th, 0) + c``;
     - ``saturation``: clip to [``lower``, ``upper``];
     - ``play``: backlash/play operator of half-width ``width`` (stateful, starts at the signal);
-    - ``first_order_lag``: ``v[k+1] = p v[k] + (1-p) s[k]``, ``pole`` in [0, 1).
+    - ``first_order_lag``: ``v[k+1] = p v[k] + (1-p) s[k]``, ``pole`` in [0, 1);
+    - ``rate_limit``: ``v[k] = v[k-1] + clip(s[k] - v[k-1], -rate, rate)``, ``rate`` > 0 per sample.
     """
 
     kind: str
@@ -77,7 +80,9 @@ class StateSpace:
     """Discrete-time state space ``x[k+1] = A x + B u``, ``y = C x + D u``.
 
     ``K`` is an optional innovation (Kalman) gain, ``x[k+1] = A x + B u + K e``, used for
-    k-step prediction and state estimation.
+    k-step prediction and state estimation.  Optional nonlinear ``terms`` Θ[k] over outputs and
+    inputs (lag >= 0; ``y[k]`` is known before ``x[k+1]``) enter the state update through ``E``
+    (n × n_terms): ``x[k+1] = A x + B u + E Θ`` (model extensions made by ``diagnose``).
     """
 
     A: FloatArray
@@ -86,6 +91,8 @@ class StateSpace:
     D: FloatArray
     x0: FloatArray | None = None
     K: FloatArray | None = None
+    terms: tuple[Term, ...] = ()
+    E: FloatArray | None = None
     kind: Literal["state_space"] = "state_space"
 
     @property
@@ -219,7 +226,7 @@ class Model:
         rep = self.representation
         if isinstance(rep, SparseMap):
             return False
-        if isinstance(rep, ARX) and rep.terms:
+        if isinstance(rep, ARX | StateSpace) and rep.terms:
             return False
         return all(b.kind == "delay" for b in self.input_blocks) and not self.output_blocks
 
@@ -234,6 +241,7 @@ class Model:
         input delay blocks are realised as extra states.
         """
         import control
+
         from tendonkit.realize import to_state_space
 
         if not self.is_linear:
@@ -344,6 +352,8 @@ def _rep_to_dict(rep: Representation) -> dict[str, Any]:
             "D": _arr(rep.D),
             "x0": _arr(rep.x0),
             "K": _arr(rep.K),
+            "terms": [t.to_dict() for t in rep.terms],
+            "E": _arr(rep.E),
         }
     if isinstance(rep, ARX):
         return {
@@ -389,6 +399,11 @@ def _check_model(m: Model) -> list[str]:
             _shape(p, "x0", rep.x0, (n,))
         if rep.K is not None:
             _shape(p, "K", rep.K, (n, ny))
+        if rep.terms and rep.E is None:
+            p.append("state_space terms need the matrix E.")
+        if rep.E is not None:
+            _shape(p, "E", rep.E, (n, len(rep.terms)))
+        _term_signals(p, rep.terms, set(m.input_names) | set(m.output_names))
     elif isinstance(rep, ARX):
         for i, a in enumerate(rep.A):
             _shape(p, f"A[{i}]", a, (ny, ny))
@@ -405,6 +420,7 @@ def _check_model(m: Model) -> list[str]:
             _shape(p, "term_coefficients", rep.term_coefficients, (nt, ny))
         allowed = set(m.input_names) | set(m.output_names)
         _term_signals(p, rep.terms, allowed)
+        _past_outputs(p, rep.terms, set(m.output_names))
         if not rep.B and not rep.A and not rep.terms:
             p.append("an ARX model needs at least one A or B matrix.")
     elif isinstance(rep, SparseMap):
@@ -454,6 +470,8 @@ def _check_block(where: str, b: Block, allowed: set[str]) -> list[str]:
         p.append(f"{where}: {b.kind} width must be >= 0, found {vals}.")
     elif b.kind == "saturation" and vals["lower"] >= vals["upper"]:
         p.append(f"{where}: saturation needs lower < upper, found {vals}.")
+    elif b.kind == "rate_limit" and not vals["rate"] > 0:
+        p.append(f"{where}: rate_limit rate must be > 0, found {vals['rate']}.")
     elif b.kind == "first_order_lag" and not 0.0 <= vals["pole"] < 1.0:
         p.append(f"{where}: first_order_lag pole must be in [0, 1), found {vals['pole']}.")
     return p
@@ -464,6 +482,12 @@ def _term_signals(p: list[str], terms: tuple[Term, ...], allowed: set[str]) -> N
         unknown = t.signals - allowed
         if unknown:
             p.append(f"term {i} ({t.label}) reads unknown signals {sorted(unknown)}.")
+
+
+def _past_outputs(p: list[str], terms: tuple[Term, ...], outputs: set[str]) -> None:
+    for i, t in enumerate(terms):
+        if any(f.signal in outputs and f.lag < 1 for f in t.factors):
+            p.append(f"term {i} ({t.label}) must read outputs with lag >= 1 (no algebraic loop).")
 
 
 def _shape(p: list[str], name: str, a: Any, shape: tuple[int, ...]) -> None:

@@ -19,6 +19,7 @@ from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
+
 from tendonkit.dataset import Dataset
 from tendonkit.errors import DataError, SimulationError
 from tendonkit.schema import ARX, Block, Model, SparseMap, StateSpace
@@ -50,7 +51,19 @@ def apply_block(block: Block, s: FloatArray) -> FloatArray:
         a = p["pole"]
         out = lfilter([0.0, 1.0 - a], [1.0, -a], s - s[0]) + s[0]
         return np.asarray(out)
+    if block.kind == "rate_limit":
+        return rate_limiter(s, p["rate"])
     raise SimulationError(f"Unknown block kind {block.kind!r}.")  # pragma: no cover
+
+
+def rate_limiter(s: FloatArray, rate: float) -> FloatArray:
+    """Follow ``s`` with at most ``rate`` change per sample, starting at ``s[0]``."""
+    out = np.empty_like(s, dtype=float)
+    v = s[0]
+    for k, x in enumerate(s):
+        v += min(max(x - v, -rate), rate)
+        out[k] = v
+    return out
 
 
 def play_operator(s: FloatArray, width: float, start: float | None = None) -> FloatArray:
@@ -149,7 +162,9 @@ def simulate(
         )
     ub = _apply_blocks(model.input_blocks, model.input_names, u)
     rep = model.representation
-    if isinstance(rep, StateSpace):
+    if isinstance(rep, StateSpace) and rep.terms:
+        ys = _sim_ss_terms(model, rep, ub, y, initial)
+    elif isinstance(rep, StateSpace):
         ys = _sim_ss(rep, ub, y, initial)
     elif isinstance(rep, ARX):
         ys = _sim_arx(model, rep, ub, y, initial)
@@ -185,18 +200,84 @@ def _aligned(model: Model, data: Dataset) -> Dataset:
 # -- state space --------------------------------------------------------------------------------
 
 
-def _sim_ss(rep: StateSpace, u: FloatArray, y: FloatArray | None, initial: Initial) -> FloatArray:
+def _ss_x0(
+    rep: StateSpace,
+    u: FloatArray,
+    y: FloatArray | None,
+    initial: Initial,
+    model: Model | None = None,
+) -> FloatArray:
     n = rep.n_states
     if isinstance(initial, np.ndarray) or not isinstance(initial, str):
-        x0 = np.asarray(initial, dtype=float).reshape(n)
-    elif initial == "zero":
-        x0 = np.zeros(n)
-    elif initial == "model":
-        x0 = np.zeros(n) if rep.x0 is None else rep.x0
-    else:
-        assert y is not None
-        x0 = estimate_x0(rep, u, y)
-    return ss_response(rep.A, rep.B, rep.C, rep.D, u, x0)
+        return np.asarray(initial, dtype=float).reshape(n)
+    if initial == "zero":
+        return np.zeros(n)
+    if initial == "model":
+        return np.zeros(n) if rep.x0 is None else rep.x0
+    assert y is not None
+    if rep.terms and rep.E is not None and model is not None:
+        # Θ from the measured outputs acts as a known extra input for the initial-state fit.
+        theta = ss_theta_measured(model, u, y)
+        lin = StateSpace(
+            rep.A,
+            np.hstack([rep.B, rep.E]),
+            rep.C,
+            np.hstack([rep.D, np.zeros((rep.C.shape[0], rep.E.shape[1]))]),
+        )
+        return estimate_x0(lin, np.hstack([u, theta]), y)
+    return estimate_x0(rep, u, y)
+
+
+def _sim_ss(rep: StateSpace, u: FloatArray, y: FloatArray | None, initial: Initial) -> FloatArray:
+    return ss_response(rep.A, rep.B, rep.C, rep.D, u, _ss_x0(rep, u, y, initial))
+
+
+def ss_theta_measured(model: Model, u: FloatArray, y: FloatArray) -> FloatArray:
+    """The terms of a model evaluated on measured signals (series-parallel), shape (n, n_terms)."""
+    from tendonkit.terms import series_getter
+
+    rep = model.representation
+    assert isinstance(rep, StateSpace | ARX)
+    ct = CompiledTerms(rep.terms)
+    sig = {
+        **{n: u[:, j] for j, n in enumerate(model.input_names)},
+        **{n: y[:, j] for j, n in enumerate(model.output_names)},
+    }
+    get = series_getter(sig)
+    if not ct.keys:
+        return np.ones((u.shape[0], ct.n_terms))
+    return ct.evaluate(np.array([get(n, lag) for n, lag in ct.keys])).T
+
+
+def _sim_ss_terms(
+    model: Model, rep: StateSpace, u: FloatArray, y: FloatArray | None, initial: Initial
+) -> FloatArray:
+    """State space with nonlinear terms of past outputs: a loop over samples."""
+    assert rep.E is not None
+    x = _ss_x0(rep, u, y, initial, model).copy()
+    ct = CompiledTerms(rep.terms)
+    N, ny, nu = u.shape[0], rep.C.shape[0], u.shape[1]
+    L = max((t.max_lag for t in rep.terms), default=1)
+    Y = np.zeros((N + L, ny))
+    U = np.zeros((N + L, nu))
+    U[L:] = u
+    U[:L] = u[0] if N else 0.0
+    hist = {
+        **{n: U[:, j] for j, n in enumerate(model.input_names)},
+        **{n: Y[:, j] for j, n in enumerate(model.output_names)},
+    }
+    if y is not None and isinstance(initial, str) and initial == "estimate":
+        Y[:L] = y[0]
+    keys = ct.keys
+    for k in range(N):
+        kk = k + L
+        Y[kk] = rep.C @ x + rep.D @ u[k]
+        vals = np.array([hist[name][kk - lag] for name, lag in keys])
+        x = rep.A @ x + rep.B @ u[k] + rep.E @ ct.evaluate(vals)
+        if not np.all(np.isfinite(x)):
+            Y[kk + 1 :] = np.nan
+            break
+    return Y[L:]
 
 
 def ss_response(
@@ -284,23 +365,48 @@ def _sim_arx(
         if np.any(Gl):
             forced += U[L - lag : L - lag + N] @ Gl.T
     ct = CompiledTerms(rep.terms) if rep.terms else None
-    hist: dict[str, FloatArray] = {}
-    if ct is not None:
-        for j, name in enumerate(model.input_names):
-            hist[name] = U[:, j]
-        for j, name in enumerate(model.output_names):
-            hist[name] = Y[:, j]
-        # input-only terms can be computed in advance; output terms need the loop
     na = rep.na
     coef = rep.term_coefficients
+    if (ct is None or coef is None) and ny == 1 and start < N:
+        # Single output: the recursion is an IIR filter of the input contribution (C speed).
+        from scipy.signal import lfilter, lfiltic
+
+        a = np.concatenate([[1.0], [float(Ai[0, 0]) for Ai in rep.A]])
+        zi = lfiltic([1.0], a, y=Y[L + start - 1 :: -1, 0][: max(na, 1)]) if na else None
+        if zi is None:
+            Y[L + start :, 0] = forced[start:, 0]
+        else:
+            Y[L + start :, 0] = lfilter([1.0], a, forced[start:, 0], zi=zi)[0]
+        return Y[L:]
+    if ct is None or coef is None:
+        for k in range(start, N):
+            kk = k + L
+            acc = forced[k].copy()
+            if na:
+                acc -= Acat @ Y[kk - na : kk][::-1].reshape(-1)
+            Y[kk] = acc
+        return Y[L:]
+    # Nonlinear terms: keys are (signal, lag); read the needed history per step.
+    from tendonkit.terms import scalar_evaluator
+
+    evaluate = scalar_evaluator(ct)
+    cols = {
+        **{n: (U, j) for j, n in enumerate(model.input_names)},
+        **{n: (Y, j) for j, n in enumerate(model.output_names)},
+    }
+    reads = [(cols[name][0], cols[name][1], lag) for name, lag in ct.keys]
+    coef_t = coef.T.copy()
     for k in range(start, N):
         kk = k + L
         acc = forced[k].copy()
         if na:
-            past = Y[kk - na : kk][::-1].reshape(-1)
-            acc -= Acat @ past
-        if ct is not None and coef is not None:
-            acc += ct.evaluate(_key_values(ct.keys, hist, kk)) @ coef
+            acc -= Acat @ Y[kk - na : kk][::-1].reshape(-1)
+        try:
+            theta = evaluate([float(arr[kk - lag, j]) for arr, j, lag in reads])
+        except (OverflowError, ValueError):  # the simulation diverged
+            Y[kk:] = np.nan
+            break
+        acc += coef_t @ theta
         Y[kk] = acc
     return Y[L:]
 
@@ -375,9 +481,48 @@ def predict(model: Model, u: FloatArray, y: FloatArray, k: int = 1) -> FloatArra
         raise DataError(f"The prediction horizon k must be >= 1, found {k}.")
     ub = _apply_blocks(model.input_blocks, model.input_names, u)
     rep = model.representation
+    if isinstance(rep, StateSpace) and rep.terms:
+        return _predict_ss_terms(model, rep, ub, y, k)
     if isinstance(rep, StateSpace):
         return _predict_ss(rep, ub, y, k)
     return _predict_recursive(model, ub, y, k)
+
+
+def _predict_ss_terms(
+    model: Model, rep: StateSpace, u: FloatArray, y: FloatArray, k: int
+) -> FloatArray:
+    """k-step prediction with terms: Θ from measurements up to t-k, from predictions after."""
+    assert rep.E is not None
+    ny = rep.C.shape[0]
+    theta = ss_theta_measured(model, u, y)
+    lin = StateSpace(
+        rep.A, np.hstack([rep.B, rep.E]), rep.C, np.hstack([rep.D, np.zeros((ny, rep.E.shape[1]))])
+    )
+    ua = np.hstack([u, theta])
+    K = rep.K if rep.K is not None else fitted_kalman_gain(lin, ua, y)
+    Xp = _one_step_states(lin, K, ua, y)
+    if k == 1:
+        return Xp[:-1] @ rep.C.T + u @ rep.D.T
+    ct = CompiledTerms(rep.terms)
+    L = max((t.max_lag for t in rep.terms), default=1)
+    out = y.copy()
+    names_in, names_out = model.input_names, model.output_names
+    for t in range(k - 1 + L, u.shape[0]):
+        x = Xp[t - k + 1]
+        ywin = {n: list(y[t - k + 1 - L : t - k + 1, j]) for j, n in enumerate(names_out)}
+        for j in range(t - k + 1, t):
+            yj = rep.C @ x + rep.D @ u[j]
+            for c, n in enumerate(names_out):
+                ywin[n].append(yj[c])
+            vals = np.array(
+                [
+                    ywin[n][-1 - lag] if n in ywin else u[j - lag, names_in.index(n)]
+                    for n, lag in ct.keys
+                ]
+            )
+            x = rep.A @ x + rep.B @ u[j] + rep.E @ ct.evaluate(vals)
+        out[t] = rep.C @ x + rep.D @ u[t]
+    return out
 
 
 def _predict_ss(rep: StateSpace, u: FloatArray, y: FloatArray, k: int) -> FloatArray:

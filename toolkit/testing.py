@@ -23,6 +23,7 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
+
 from tendonkit.dataset import Dataset
 from tendonkit.errors import DataError, TendonkitError
 from tendonkit.metrics import fit

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import NDArray
+
 from tendonkit.dataset import Dataset
 from tendonkit.schema import Model, Provenance, Signal, StateSpace
 from tendonkit.simulate import ss_response

@@ -8,6 +8,7 @@ import sys
 
 import numpy as np
 import pytest
+
 from tendonkit.cli import main
 from tendonkit.dataset import Dataset
 

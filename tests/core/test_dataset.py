@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from tendonkit.dataset import Dataset, write_csv
 from tendonkit.errors import DataError
 

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 import pytest
+
 from tendonkit import hookimpl
 from tendonkit.errors import OptionError, PluginError
 from tendonkit.manager import identifiers, register, unregister

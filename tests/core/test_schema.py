@@ -9,6 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
+
 from tendonkit.errors import SchemaError
 from tendonkit.schema import ARX, Block, Model, Signal, SparseMap, StateSpace
 from tendonkit.terms import Factor, Term

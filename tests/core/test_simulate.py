@@ -5,6 +5,7 @@ from __future__ import annotations
 import control
 import numpy as np
 import pytest
+
 from tendonkit.errors import DataError
 from tendonkit.metrics import fit
 from tendonkit.schema import ARX, Block, Model, Signal, SparseMap, StateSpace
@@ -120,3 +121,68 @@ def test_play_operator_width_and_memory():
 def test_wrong_input_shape_is_a_data_error(truth8):
     with pytest.raises(DataError, match=r"shape \(n_samples, 4\)"):
         simulate(truth8, np.zeros((10, 3)))
+
+
+def _ss_with_friction() -> Model:
+    terms = (
+        Term((Factor("y", fn="tanh", diff=1, lag=1, scale=50.0),)),
+        Term((Factor("y", power=3, lag=1),)),
+    )
+    rep = StateSpace(
+        A=np.array([[0.9, 0.1], [-0.1, 0.8]]),
+        B=np.array([[0.2], [0.1]]),
+        C=np.array([[1.0, 0.0]]),
+        D=np.zeros((1, 1)),
+        terms=terms,
+        E=np.array([[-0.02, -0.3], [0.0, 0.0]]),
+    )
+    return Model("ssf", 0.1, (Signal("u"),), (Signal("y"),), rep)
+
+
+def test_state_space_with_terms_matches_a_manual_loop():
+    m = _ss_with_friction()
+    rep = m.representation
+    rng = np.random.default_rng(8)
+    u = rng.normal(size=(200, 1))
+    y = simulate(m, u, initial="zero")
+    x = np.zeros(2)
+    ys = []
+    for k in range(200):
+        ys.append(rep.C @ x)
+        y1 = ys[k - 1][0] if k >= 1 else 0.0
+        y2 = ys[k - 2][0] if k >= 2 else 0.0
+        theta = np.array([np.tanh(50.0 * (y1 - y2)), y1**3])
+        x = rep.A @ x + rep.B @ u[k] + rep.E @ theta
+    np.testing.assert_allclose(y[:, 0], np.array(ys)[:, 0], atol=1e-12)
+    assert not m.is_linear
+    again = Model.from_json(m.to_json())
+    np.testing.assert_array_equal(simulate(again, u, initial="zero"), y)
+
+
+def test_state_space_with_terms_prediction():
+    m = _ss_with_friction()
+    rng = np.random.default_rng(9)
+    u = rng.normal(size=(300, 1))
+    y = simulate(m, u, initial="zero")
+    # noise-free data of the model itself: every horizon predicts it (up to the x0 fit)
+    for k in (1, 3):
+        np.testing.assert_allclose(predict(m, u, y, k=k)[20:], y[20:], atol=1e-6)
+
+
+def test_output_terms_must_be_delayed():
+    from tendonkit.errors import SchemaError
+
+    with pytest.raises(SchemaError, match="lag >= 1"):
+        Model(
+            "bad",
+            0.1,
+            (Signal("u"),),
+            (Signal("y"),),
+            ARX(
+                A=(np.eye(1),),
+                B=(np.eye(1),),
+                nk=(1,),
+                terms=(Term((Factor("y"),)),),
+                term_coefficients=np.ones((1, 1)),
+            ),
+        )

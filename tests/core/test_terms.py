@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from tendonkit.terms import FUNCTIONS, CompiledTerms, Factor, Term, series_getter
 
 

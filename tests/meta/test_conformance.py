@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import pytest
+
 from tendonkit.manager import identifiers
 from tendonkit.testing import identifier_checks
 
@@ -34,6 +35,7 @@ def test_suite_catches_a_broken_identifier():
     from typing import ClassVar
 
     import numpy as np
+
     from tendonkit.identification import build_model
     from tendonkit.schema import StateSpace
 

@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 import pytest
+
 import tendonkit as tk
 from tendonkit import manager
 from tendonkit.compare import compare

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
+
 from tendonkit import hookimpl
 from tendonkit.errors import OptionError
 from tendonkit.identification import build_model, require_samples

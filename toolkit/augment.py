@@ -1,0 +1,339 @@
+"""Model extensions at the schema level: add nonlinear terms to any representation.
+
+``diagnose`` extends a baseline model with the structure that matches a physical cause.
+Two mechanisms cover every representation, so an identifier plugin needs no change:
+
+- **terms** (friction, stiffness, gravity): :func:`extend_with_terms` refits the model with
+  extra regressors Θ over *past* outputs (lag >= 1) and inputs.  ARX: least squares on the
+  ARX regressors plus Θ.  Sparse map (SINDYc): least squares on the active library terms plus
+  Θ.  State space: ``A`` and ``C`` are kept, ``B``, ``D``, ``E`` and the initial states are
+  re-estimated by output-error least squares with Θ computed from the measured outputs.
+- **blocks** (delay, dead zone, saturation, play, lag): the data are transformed, the baseline
+  identifier is run again and the block is attached (:func:`transform_inputs`,
+  :func:`drop_samples`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from tendonkit.dataset import Dataset, Experiment
+from tendonkit.errors import SchemaError
+from tendonkit.schema import ARX, Block, Model, SparseMap, StateSpace
+from tendonkit.simulate import _aligned, apply_block
+from tendonkit.terms import CompiledTerms, Term, series_getter
+
+FloatArray = NDArray[np.float64]
+
+
+def scaled_lstsq(Phi: FloatArray, Y: FloatArray, ridge: float = 0.0) -> FloatArray:
+    """Least squares with unit-norm column scaling and optional ridge (QR-based LAPACK gelsy)."""
+    from scipy.linalg import lstsq
+
+    scale = np.linalg.norm(Phi, axis=0)
+    scale[scale == 0] = 1.0
+    P = Phi / scale
+    if ridge > 0:
+        k = P.shape[1]
+        P = np.vstack([P, np.sqrt(ridge) * np.eye(k)])
+        Y = np.vstack([Y, np.zeros((k, Y.shape[1]))])
+    theta, *_ = lstsq(P, Y, lapack_driver="gelsy", check_finite=False)
+    return np.asarray(theta / scale[:, None])
+
+
+def _term_columns(terms: Sequence[Term], signals: dict[str, FloatArray], n: int) -> FloatArray:
+    ct = CompiledTerms(terms)
+    if not ct.keys:
+        return np.ones((n, ct.n_terms))
+    get = series_getter(signals)
+    return ct.evaluate(np.array([get(name, lag) for name, lag in ct.keys])).T
+
+
+def _signals(model: Model, e: Experiment) -> dict[str, FloatArray]:
+    return {
+        **{n: e.u[:, j] for j, n in enumerate(model.input_names)},
+        **{n: e.y[:, j] for j, n in enumerate(model.output_names)},
+    }
+
+
+def _note(model: Model, text: str) -> Model:
+    prov = dataclasses.replace(
+        model.provenance,
+        notes=(model.provenance.notes + "; " if model.provenance.notes else "") + text,
+    )
+    return model.replace(provenance=prov)
+
+
+def extend_with_terms(
+    model: Model,
+    data: Dataset,
+    terms: Sequence[Term],
+    note: str = "",
+    refit: Callable[[Dataset], Model] | None = None,
+) -> Model:
+    """Refit ``model`` on ``data`` with the extra regressors ``terms`` (see module docstring).
+
+    Terms are written in output-equation time: they read outputs and inputs with lag >= 1.
+    Existing terms of the model are kept and refitted.  For a state-space model, ``refit`` (the
+    baseline's identifier) is run with Θ — computed from the measured outputs — as extra
+    inputs, so ``A``, ``B`` and ``E`` are estimated together; without it, ``A`` and ``C`` are
+    kept and ``B``, ``D``, ``E``, ``x0`` are refitted by output-error least squares.
+    """
+    data = _aligned(model, data)
+    terms = tuple(terms)
+    rep = model.representation
+    if isinstance(rep, ARX):
+        new = _extend_arx(model, rep, data, terms)
+    elif isinstance(rep, SparseMap):
+        new = _extend_sparse(model, rep, data, terms)
+    elif refit is not None:
+        new = _extend_ss_by_refit(model, rep, data, terms, refit)
+    else:
+        new = _extend_ss(model, rep, data, terms)
+    return _note(new, note) if note else new
+
+
+def _extend_ss_by_refit(
+    model: Model,
+    rep: StateSpace,
+    data: Dataset,
+    terms: tuple[Term, ...],
+    refit: Callable[[Dataset], Model],
+) -> Model:
+    """Identify again with Θ(measured y) as extra inputs; their input columns become ``E``."""
+    all_terms = (*rep.terms, *(shift_term(t) for t in terms))
+    nu = len(model.inputs)
+    names = tuple(f"_theta{i}" for i in range(len(all_terms)))
+    exps = []
+    for e in data.experiments:
+        sig = {**_signals(model, e)}
+        theta = _term_columns(all_terms, sig, e.n_samples)
+        exps.append(dataclasses.replace(e, u=np.hstack([e.u, theta])))
+    augmented = Dataset(
+        inputs=data.inputs + names, outputs=data.outputs, experiments=tuple(exps), dt=data.dt
+    )
+    fitted = refit(augmented)
+    frep = fitted.representation
+    if not isinstance(frep, StateSpace) or frep.terms:
+        return _extend_ss(model, rep, data, terms)
+    return model.replace(
+        representation=StateSpace(
+            A=frep.A,
+            B=frep.B[:, :nu].copy(),
+            C=frep.C,
+            D=frep.D[:, :nu].copy(),
+            x0=None,
+            K=None,
+            terms=all_terms,
+            E=frep.B[:, nu:].copy(),
+        )
+    )
+
+
+# -- ARX ------------------------------------------------------------------------------------------
+
+
+def _extend_arx(model: Model, rep: ARX, data: Dataset, terms: tuple[Term, ...]) -> Model:
+    ny, nu = len(model.outputs), len(model.inputs)
+    all_terms = (*rep.terms, *terms)
+    nk = list(rep.nk)
+    lag = max([rep.na, *[k + rep.nb - 1 for k in nk], *[t.max_lag for t in all_terms], 1])
+    rows, targets = [], []
+    for e in data.experiments:
+        n = e.n_samples
+        if n <= lag:
+            continue
+        cols = [-e.y[lag - i : n - i] for i in range(1, rep.na + 1)]
+        for j in range(rep.nb):
+            for m in range(nu):
+                d = nk[m] + j
+                cols.append(e.u[lag - d : n - d, m : m + 1])
+        if rep.offset is not None:
+            cols.append(np.ones((n - lag, 1)))
+        cols.append(_term_columns(all_terms, _signals(model, e), n)[lag:])
+        rows.append(np.hstack(cols))
+        targets.append(e.y[lag:])
+    theta = scaled_lstsq(np.vstack(rows), np.vstack(targets))
+    A = tuple(theta[i * ny : (i + 1) * ny].T.copy() for i in range(rep.na))
+    pos = rep.na * ny
+    B = []
+    for _ in range(rep.nb):
+        B.append(theta[pos : pos + nu].T.copy())
+        pos += nu
+    offset = None
+    if rep.offset is not None:
+        offset = theta[pos].copy()
+        pos += 1
+    coef = theta[pos:].copy()
+    return model.replace(
+        representation=ARX(
+            A=A, B=tuple(B), nk=rep.nk, offset=offset, terms=all_terms, term_coefficients=coef
+        )
+    )
+
+
+# -- sparse map -----------------------------------------------------------------------------------
+
+
+def shift_term(term: Term, rename: dict[str, str] | None = None) -> Term:
+    """Rewrite an output-equation term for a state update.
+
+    Extension terms are written in output-equation time (they affect ``y[k]`` and read
+    ``y[k-l]``, ``u[k-l]`` with ``l >= 1``).  A state update ``x[k+1] = f(·[k])`` affects
+    ``y[k+1]``, so every lag drops by one; ``rename`` maps output names to state names.
+    """
+    rename = rename or {}
+    factors = []
+    for f in term.factors:
+        if f.lag < 1:
+            raise SchemaError(f"term {term.label}: extension terms must read lag >= 1.")
+        factors.append(dataclasses.replace(f, signal=rename.get(f.signal, f.signal), lag=f.lag - 1))
+    return Term(tuple(factors))
+
+
+def to_map_term(model: Model, term: Term) -> Term:
+    """:func:`shift_term` for a sparse map, with outputs renamed to their states."""
+    rep = model.representation
+    assert isinstance(rep, SparseMap)
+    out_to_state = {
+        model.output_names[j]: model.states[i].name for j, i in enumerate(rep.output_states)
+    }
+    return shift_term(term, out_to_state)
+
+
+def _extend_sparse(model: Model, rep: SparseMap, data: Dataset, terms: tuple[Term, ...]) -> Model:
+    if sorted(rep.output_states) != list(range(rep.n_states)):
+        raise SchemaError("Extending a sparse_map needs every state measured (states = outputs).")
+    active = np.any(rep.coefficients != 0, axis=1)
+    base_terms = tuple(t for t, a in zip(rep.terms, active) if a)
+    all_terms = (*base_terms, *(to_map_term(model, t) for t in terms))
+    state_names = [s.name for s in model.states]
+    order = list(rep.output_states)
+    rows, targets = [], []
+    lag = max((t.max_lag for t in all_terms), default=0)
+    for e in data.experiments:
+        x = np.empty((e.n_samples, rep.n_states))
+        for j, i in enumerate(order):
+            x[:, i] = e.y[:, j]
+        sig = {
+            **{n: x[:, i] for i, n in enumerate(state_names)},
+            **{n: e.u[:, j] for j, n in enumerate(model.input_names)},
+        }
+        cols = _term_columns(all_terms, sig, e.n_samples)
+        rows.append(cols[lag:-1])
+        targets.append(x[lag + 1 :])
+    coef = scaled_lstsq(np.vstack(rows), np.vstack(targets), ridge=1e-10)
+    return model.replace(
+        representation=dataclasses.replace(rep, terms=all_terms, coefficients=coef)
+    )
+
+
+# -- state space ----------------------------------------------------------------------------------
+
+
+def _unit_responses(A: FloatArray, C: FloatArray, signals: FloatArray) -> FloatArray:
+    """Output responses to each signal entering each state: shape (n, ny, nx * n_signals).
+
+    Column ``i * n_signals + c`` is the output when signal ``c`` drives state ``i`` from rest.
+    """
+    N, nc = signals.shape
+    nx = A.shape[0]
+    X = np.zeros((nx, nx * nc))
+    out = np.empty((N, C.shape[0], nx * nc))
+    idx = np.arange(nx)
+    for k in range(N):
+        out[k] = C @ X
+        X = A @ X
+        X[idx[:, None], (idx[:, None] * nc + np.arange(nc)[None, :])] += signals[k][None, :]
+    return out
+
+
+def _extend_ss(model: Model, rep: StateSpace, data: Dataset, terms: tuple[Term, ...]) -> Model:
+    all_terms = (*rep.terms, *(shift_term(t) for t in terms))
+    nx, ny, nu = rep.n_states, rep.C.shape[0], len(model.inputs)
+    estimate_d = bool(np.any(rep.D != 0))
+    blocks, targets = [], []
+    n_exp = len(data.experiments)
+    for ei, e in enumerate(data.experiments):
+        theta = _term_columns(all_terms, _signals(model, e), e.n_samples)
+        sig = np.hstack([e.u, theta])
+        resp = _unit_responses(rep.A, rep.C, sig)  # (N, ny, nx*nc)
+        N = e.n_samples
+        parts = [resp.reshape(N * ny, -1)]
+        if estimate_d:
+            Dcols = np.zeros((N, ny, ny * nu))
+            for j in range(ny):
+                Dcols[:, j, j * nu : (j + 1) * nu] = e.u
+            parts.append(Dcols.reshape(N * ny, -1))
+        X0 = np.zeros((N * ny, nx * n_exp))
+        M = rep.C.copy()
+        for k in range(N):
+            X0[k * ny : (k + 1) * ny, ei * nx : (ei + 1) * nx] = M
+            M = M @ rep.A
+        parts.append(X0)
+        blocks.append(np.hstack(parts))
+        targets.append(e.y.reshape(-1, 1))
+    theta_hat = scaled_lstsq(np.vstack(blocks), np.vstack(targets))[:, 0]
+    nc = nu + len(all_terms)
+    G = theta_hat[: nx * nc].reshape(nx, nc)
+    pos = nx * nc
+    D = rep.D
+    if estimate_d:
+        D = theta_hat[pos : pos + ny * nu].reshape(ny, nu)
+        pos += ny * nu
+    x0 = theta_hat[pos : pos + nx]
+    return model.replace(
+        representation=dataclasses.replace(
+            rep, B=G[:, :nu].copy(), D=D, E=G[:, nu:].copy(), terms=all_terms, x0=x0, K=None
+        )
+    )
+
+
+# -- data transforms for block-based extensions ---------------------------------------------------
+
+
+def transform_inputs(data: Dataset, blocks: Sequence[Block]) -> Dataset:
+    """Apply input blocks to every experiment's inputs (what the extended model sees)."""
+    exps = []
+    for e in data.experiments:
+        u = e.u.copy()
+        for b in blocks:
+            j = data.inputs.index(b.signal)
+            u[:, j] = apply_block(b, u[:, j])
+        exps.append(dataclasses.replace(e, u=u))
+    return data.with_experiments(exps)
+
+
+def transform_outputs(data: Dataset, fn: Callable[[FloatArray], FloatArray]) -> Dataset:
+    """Replace every experiment's outputs by ``fn(y)``."""
+    return data.with_experiments(
+        [dataclasses.replace(e, y=fn(e.y.copy())) for e in data.experiments]
+    )
+
+
+def drop_samples(
+    data: Dataset, mask_fn: Callable[[Experiment], FloatArray], min_length: int
+) -> Dataset:
+    """Split experiments where ``mask_fn`` marks samples to drop; keep segments >= min_length."""
+    exps = []
+    for e in data.experiments:
+        drop = np.asarray(mask_fn(e), dtype=bool)
+        keep = ~drop
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], keep.astype(int), [0]])))
+        for a, b in zip(edges[::2], edges[1::2]):
+            if b - a >= min_length:
+                s = slice(a, b)
+                exps.append(
+                    Experiment(
+                        t=e.t[s],
+                        u=e.u[s],
+                        y=e.y[s],
+                        name=f"{e.name}[{a}:{b}]",
+                        extra={k: v[s] for k, v in e.extra.items()},
+                    )
+                )
+    return data.with_experiments(exps)

@@ -243,6 +243,109 @@ def cmd_compare(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_diagnose(args: argparse.Namespace) -> int:
+    """Find what the baseline model gets wrong, name the cause, extend and measure the gain."""
+    from tendonkit.dataset import Dataset
+    from tendonkit.manager import effects, identifiers
+
+    problems: list[str] = []
+    inputs, outputs = split_names(args.inputs), split_names(args.outputs)
+    if not outputs:
+        problems.append("--outputs names no column.")
+    options = parse_key_values(args.option, "--option", problems)
+    registry = identifiers()
+    if args.method not in registry:
+        problems.append(
+            f"unknown method {args.method!r}; registered: {', '.join(registry.names())}."
+        )
+    else:
+        try:
+            registry.get(args.method).create(**options)
+        except OptionError as exc:
+            problems.extend(exc.problems or [str(exc)])
+    chosen = split_names(args.effects) if args.effects else None
+    if chosen:
+        known = effects().names()
+        problems.extend(
+            f"unknown effect {e!r}; registered: {', '.join(known)}."
+            for e in chosen
+            if e not in known
+        )
+    if args.report:
+        Path(args.report).mkdir(parents=True, exist_ok=True)
+    for out in (args.json, args.model):
+        if out:
+            check_output_path(out, [args.train, args.valid], problems)
+    data = []
+    for path in (args.train, args.valid):
+        try:
+            data.append(Dataset.from_csv(path, inputs, outputs, time=args.time))
+        except DataError as exc:
+            problems.extend(exc.problems or [str(exc)])
+    if len(data) == 2 and abs(data[0].dt - data[1].dt) > 0.01 * data[0].dt:
+        problems.append(
+            f"training and validation sample times differ: {data[0].dt} s and {data[1].dt} s."
+        )
+    raise_problems(problems, "tendonkit diagnose cannot run:")
+    from tendonkit.diagnose import diagnose
+
+    train, valid = data
+    result = diagnose(
+        train,
+        valid,
+        method=args.method,
+        options=options,
+        effects=chosen,
+        alpha=args.alpha,
+        seed=args.seed,
+        progress=sys.stderr.isatty(),
+    )
+    model_path = args.model or (
+        str(Path(args.report) / "extended_model.json") if args.report else None
+    )
+    if model_path is None and args.json:
+        model_path = str(Path(args.json).with_name(Path(args.json).stem + "_model.json"))
+    if model_path is not None:
+        Path(model_path).parent.mkdir(parents=True, exist_ok=True)
+        atomic_write(model_path, result.extended.save)
+    summary = result.to_dict(model_path)
+    if args.json:
+        write_json(args.json, summary)
+    if args.report:
+        from tendonkit.diagnose_report import write_report
+
+        index = write_report(result, valid, args.report, model_path)
+        summary["report"] = str(index)
+    print(render_diagnosis(summary))
+    return 0
+
+
+def render_diagnosis(summary: dict[str, Any]) -> str:
+    """Plain-text summary of a diagnosis."""
+    lines = [
+        f"cause: {summary['cause']}",
+        f"baseline ({summary['baseline']['method']}): fit {summary['baseline']['fit']:.2f} %",
+    ]
+    ext = summary["extended"]
+    if summary["cause"] != "none":
+        lines.append(
+            f"extended ({ext['effect']}): fit {ext['fit']:.2f} % (gain {ext['gain']:+.2f} points)"
+            + (f", model: {ext['model']}" if ext.get("model") else "")
+        )
+    if summary.get("margin_to_runner_up") is not None:
+        lines.append(f"margin to runner-up: {summary['margin_to_runner_up']:.2f} points")
+    if summary.get("ambiguous"):
+        lines.append(summary["ambiguous"]["statement"])
+        lines.append("to tell them apart: " + summary["ambiguous"]["experiment"])
+    lines.append("findings (validation gain, p-value):")
+    for f in summary["findings"]:
+        mark = "*" if f["significant"] else " "
+        lines.append(f" {mark} {f['cause']:<20} {f['gain']:+8.2f}  p={f['p_value']:.3g}")
+    if summary.get("report"):
+        lines.append(f"report: {summary['report']}")
+    return "\n".join(lines)
+
+
 def cmd_plugins(args: argparse.Namespace) -> int:
     """List registered identifiers and effects."""
     from tendonkit.manager import FAILURES, effects, identifiers, plugin_manager
@@ -341,6 +444,24 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plot", help="write figures (PNG) into this folder")
     p.add_argument("--time", default="t", help="time column (default: t)")
     p.set_defaults(func=cmd_compare)
+
+    p = sub.add_parser("diagnose", help="name what a model gets wrong, extend it, measure the gain")
+    p.add_argument("train", help="training CSV")
+    p.add_argument("valid", help="validation CSV (never used to fit or choose anything)")
+    p.add_argument("--inputs", required=True, help="input columns, comma separated")
+    p.add_argument("--outputs", required=True, help="output columns, comma separated")
+    p.add_argument("--method", default="arx", help="baseline identifier (default: arx)")
+    p.add_argument("--option", action="append", metavar="KEY=VALUE", help="baseline option")
+    p.add_argument("--effects", help="effects to try, comma separated (default: all registered)")
+    p.add_argument("--alpha", type=float, default=0.01, help="significance level (default 0.01)")
+    p.add_argument("--seed", type=int, default=0, help="seed for every random choice")
+    p.add_argument("--json", help="write the result as JSON here")
+    p.add_argument(
+        "--model", help="write the extended model here (default: next to --json/--report)"
+    )
+    p.add_argument("--report", help="write an HTML report with figures into this folder")
+    p.add_argument("--time", default="t", help="time column (default: t)")
+    p.set_defaults(func=cmd_diagnose)
 
     p = sub.add_parser("plugins", help="list registered identifiers and effects")
     p.add_argument("--json", help="write the list as JSON here")

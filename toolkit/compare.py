@@ -85,7 +85,21 @@ def compare(
     if problems:
         raise DataError("The data do not fit the models:", problems)
     mode = "free run" if k is None else f"{k}-step prediction"
-    return {"mode": mode, "initial": initial if k is None else None, "models": rows}
+    result: dict[str, Any] = {
+        "mode": mode,
+        "initial": initial if k is None else None,
+        "models": rows,
+    }
+    if plot_dir is not None and models and len({tuple(m.output_names) for m in models}) == 1:
+        data0 = (
+            data_files
+            if isinstance(data_files, Dataset)
+            else Dataset.from_csv(
+                data_files, models[0].input_names, models[0].output_names, time=time
+            )
+        )
+        result["figures"] = plot_compare(models, names, data0, plot_dir, initial)
+    return result
 
 
 def render_compare(result: dict[str, Any]) -> str:
@@ -101,3 +115,27 @@ def render_compare(result: dict[str, Any]) -> str:
             parts.append(f"mean end-effector error {r['ee_error_cm']:.2f} cm")
         text.append(f"{r['model']}: " + "; ".join(parts))
     return "\n".join(text)
+
+
+def plot_compare(
+    models: Sequence[Model],
+    names: Sequence[str],
+    data: Dataset,
+    plot_dir: str | Path,
+    initial: str = "estimate",
+) -> list[str]:
+    """Measured vs simulated outputs of every model (one PNG), as :func:`compare` scores them."""
+    from tendonkit.figures_model import plot_outputs
+
+    sims: dict[str, np.ndarray] = {}
+    model0 = models[0]
+    for name, model in zip(names, models):
+        _, s = score(model, data, initial=initial)
+        sims[str(name)] = np.vstack(s)
+    from tendonkit.simulate import _aligned
+
+    aligned = _aligned(model0, data)
+    t = np.concatenate([e.t for e in aligned.experiments])
+    units = [s.unit for s in model0.outputs]
+    path = plot_outputs(Path(plot_dir), "compare", t, aligned.y, sims, model0.output_names, units)
+    return [str(path)]

@@ -43,9 +43,9 @@ def fit(y: FloatArray, y_hat: FloatArray) -> FloatArray:
         y_hat = y_hat[:, None]
     if y.shape != y_hat.shape:
         raise DataError(f"fit needs equal shapes; found {y.shape} and {y_hat.shape}.")
-    den = np.linalg.norm(y - y.mean(axis=0), axis=0)
-    num = np.linalg.norm(y - y_hat, axis=0)
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        den = np.linalg.norm(y - y.mean(axis=0), axis=0)
+        num = np.linalg.norm(y - y_hat, axis=0)
         out = 100.0 * (1.0 - num / den)
     out[~np.isfinite(num)] = -np.inf
     out[den == 0] = np.where(num[den == 0] == 0, 100.0, -np.inf)

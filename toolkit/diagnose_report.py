@@ -1,0 +1,155 @@
+"""The diagnose report: what the simulation gets wrong, the named cause, before and after."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tendonkit.dataset import Dataset
+from tendonkit.diagnose import Diagnosis, _simulate_all
+from tendonkit.report import Report
+
+
+def explaining_signal(cause: str, data: Dataset, j: int) -> tuple[np.ndarray, str]:
+    """The signal against which a cause's residual pattern shows, for output ``j``."""
+    y = data.y[:, j]
+    name = data.outputs[j]
+    if cause in ("coulomb_friction", "backlash", "hysteresis"):
+        v = np.zeros_like(y)
+        v[3:] = (y[3:] - y[:-3]) / (3 * data.dt)
+        return v, f"velocity of {name} [{name} units/s]"
+    if cause in ("nonlinear_stiffness", "gravity", "saturation"):
+        return y, f"{name} [output units]"
+    if cause == "dead_zone":
+        return np.min(np.abs(data.u), axis=1), "smallest |input| [input units]"
+    if cause == "actuator_lag":
+        return np.max(np.abs(np.diff(data.u, axis=0, prepend=data.u[:1])), axis=1) / data.dt, (
+            "largest input rate [input units/s]"
+        )
+    return data.u[:, 0], f"{data.inputs[0]} [input units]"
+
+
+def write_report(
+    diagnosis: Diagnosis, valid: Dataset, folder: str | Path, model_path: str | None = None
+) -> Path:
+    """Write ``index.html`` with figures into ``folder`` and return its path."""
+    from tendonkit.figures_model import (
+        plot_correlation,
+        plot_outputs,
+        plot_ranking,
+        plot_residual_vs,
+    )
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    d = diagnosis.to_dict(model_path)
+    rep = Report("tendonkit diagnose", folder)
+    rep.heading("Cause")
+    best = diagnosis.best
+    if best is None:
+        rep.text(
+            "No candidate extension improved the validation fit significantly: cause 'none'. "
+            "The baseline's errors are consistent with noise or with structure none of the "
+            "registered effects explains."
+        )
+    else:
+        rep.text(
+            f"Named cause: {best.cause} ({best.description}). Validation fit "
+            f"{d['baseline']['fit']:.2f} % -> {d['extended']['fit']:.2f} % "
+            f"(gain {best.gain:+.2f} points, p = {best.p_value:.2g})."
+        )
+        if diagnosis.margin is not None:
+            rep.text(f"Margin to the runner-up: {diagnosis.margin:.2f} points.")
+    if diagnosis.ambiguous:
+        rep.text(
+            diagnosis.ambiguous["statement"]
+            + " Experiment to tell them apart: "
+            + diagnosis.ambiguous["experiment"]
+        )
+    rep.heading("Ranking of candidate causes (validation data)")
+    rows = [
+        [
+            f["cause"],
+            f["gain"],
+            f["relative_gain"] * 100,
+            f["p_value"],
+            "yes" if f["significant"] else "no",
+            f["n_params"],
+        ]
+        for f in d["findings"]
+    ]
+    rep.table(
+        [
+            "cause",
+            "gain [pts]",
+            "error energy drop [%]",
+            "p-value",
+            "significant",
+            "added parameters",
+        ],
+        rows,
+    )
+    rep.figure(plot_ranking(folder, d["findings"]), "Gain of each candidate on held-out data")
+    if diagnosis.skipped:
+        rep.text(
+            "Not applicable: "
+            + "; ".join(f"{s['effect']} ({s['reason']})" for s in diagnosis.skipped),
+            note=True,
+        )
+    rep.heading("Measured vs simulated, before and after")
+    sims: dict[str, Any] = {"baseline": _simulate_all(diagnosis.baseline, valid)}
+    if best is not None and best.model is not None:
+        sims[f"extended ({best.cause})"] = _simulate_all(best.model, valid)
+    t = np.concatenate([e.t - e.t[0] + (i * 0) for i, e in enumerate(valid.experiments)])
+    t = np.arange(len(t)) * valid.dt
+    rep.figure(
+        plot_outputs(
+            folder,
+            "before_after",
+            t,
+            valid.y,
+            sims,
+            list(valid.outputs),
+            title="Validation data: measured, baseline and extended model",
+        ),
+        "Validation experiments back to back (time runs on across experiments).",
+    )
+    rep.heading("Residuals")
+    res = diagnosis.residuals
+    conc = sorted(res.concentration, key=lambda c: -c.ratio)[:8]
+    rep.table(
+        ["where", "output", "RMS inside / outside", "share of samples [%]"],
+        [[c.condition, c.output, c.ratio, 100 * c.fraction] for c in conc],
+    )
+    cause = best.cause if best is not None else "none"
+    for j, name in enumerate(valid.outputs):
+        sig, label = explaining_signal(cause, valid, j)
+        r = np.nan_to_num(res.residual[:, j])
+        rep.figure(
+            plot_residual_vs(
+                folder, f"{name}_{cause}", sig, r, label, f"free-run residual of {name}"
+            ),
+            f"Residual of {name} against the signal that explains '{cause}'.",
+        )
+        strongest = res.strongest.get(name, {})
+        m = (
+            list(valid.inputs).index(strongest["input"])
+            if strongest.get("input") in valid.inputs
+            else 0
+        )
+        rep.figure(
+            plot_correlation(
+                folder,
+                res.lags,
+                res.crosscorr[j, m],
+                res.band,
+                f"{name} vs {valid.inputs[m]}",
+                f"Cross-correlation of one-step residual of {name} with {valid.inputs[m]}",
+            ),
+            "Correlation outside the band at a lag is dynamics the model misses at that lag.",
+        )
+    rep.heading("Settings")
+    rep.pre(str(d["settings"]))
+    return rep.write()

@@ -138,18 +138,10 @@ def _regressors(
 
 
 def _solve(Phi: FloatArray, Y: FloatArray, ridge: float) -> FloatArray:
-    """Least squares with unit-norm column scaling (and optional ridge), QR-based solver."""
-    from scipy.linalg import lstsq
+    """Scaled, QR-reduced least squares (:func:`tendonkit.augment.scaled_lstsq`)."""
+    from tendonkit.augment import scaled_lstsq
 
-    scale = np.linalg.norm(Phi, axis=0)
-    scale[scale == 0] = 1.0
-    P = Phi / scale
-    if ridge > 0:
-        k = P.shape[1]
-        P = np.vstack([P, np.sqrt(ridge) * np.eye(k)])
-        Y = np.vstack([Y, np.zeros((k, Y.shape[1]))])
-    theta, *_ = lstsq(P, Y, lapack_driver="gelsy", check_finite=False)
-    return np.asarray(theta / scale[:, None])
+    return scaled_lstsq(Phi, Y, ridge)
 
 
 def _to_representation(

@@ -20,6 +20,7 @@ from tendonkit.errors import (
 from tendonkit.hookspecs import hookimpl
 from tendonkit.manager import effects, identifiers
 from tendonkit.metrics import fit, fit_table
+from tendonkit.mpc import LinearMPC, NoiseCovariance, NonlinearMPC, StepResult
 from tendonkit.schema import ARX, Block, Model, Provenance, Signal, SparseMap, StateSpace
 from tendonkit.simulate import predict, simulate, simulate_dataset
 from tendonkit.terms import Factor, Term
@@ -34,7 +35,10 @@ __all__ = [
     "Experiment",
     "FMUError",
     "Factor",
+    "LinearMPC",
     "Model",
+    "NoiseCovariance",
+    "NonlinearMPC",
     "OptionError",
     "PluginError",
     "Provenance",
@@ -43,6 +47,7 @@ __all__ = [
     "SimulationError",
     "SparseMap",
     "StateSpace",
+    "StepResult",
     "TendonkitError",
     "Term",
     "__version__",

@@ -31,17 +31,27 @@ FloatArray = NDArray[np.float64]
 
 
 def scaled_lstsq(Phi: FloatArray, Y: FloatArray, ridge: float = 0.0) -> FloatArray:
-    """Least squares with unit-norm column scaling and optional ridge (QR-based LAPACK gelsy)."""
-    from scipy.linalg import lstsq
+    """Least squares with unit-norm column scaling and optional ridge.
+
+    The tall problem is reduced by a blocked Householder QR of ``[Phi | Y]`` (LAPACK geqrf,
+    orthogonal, so no squaring of the condition number as with normal equations); the small
+    triangular problem is then solved by a rank-revealing SVD solver, which also handles
+    exactly collinear regressors.
+    """
+    from scipy.linalg import lstsq, qr
 
     scale = np.linalg.norm(Phi, axis=0)
     scale[scale == 0] = 1.0
     P = Phi / scale
+    k = P.shape[1]
     if ridge > 0:
-        k = P.shape[1]
         P = np.vstack([P, np.sqrt(ridge) * np.eye(k)])
         Y = np.vstack([Y, np.zeros((k, Y.shape[1]))])
-    theta, *_ = lstsq(P, Y, lapack_driver="gelsy", check_finite=False)
+    if P.shape[0] > 4 * (k + Y.shape[1]):
+        R = qr(np.hstack([P, Y]), mode="r", check_finite=False)[0]
+        m = min(R.shape[0], k)
+        P, Y = R[:m, :k], R[:m, k:]
+    theta, *_ = lstsq(P, Y, check_finite=False, cond=1e-13)
     return np.asarray(theta / scale[:, None])
 
 
@@ -337,3 +347,19 @@ def drop_samples(
                     )
                 )
     return data.with_experiments(exps)
+
+
+def refit_with_input_blocks(
+    refit: Callable[[Dataset], Model], blocks: Sequence[Block]
+) -> Callable[[Dataset], Model]:
+    """A builder that identifies on inputs passed through ``blocks`` and attaches the blocks.
+
+    ``refit`` is the baseline's identifier (``identify(dataset) -> Model``); the returned
+    function maps training data to the extended model, for every representation.
+    """
+
+    def build(data: Dataset) -> Model:
+        model = refit(transform_inputs(data, blocks))
+        return model.replace(input_blocks=(*blocks, *model.input_blocks))
+
+    return build

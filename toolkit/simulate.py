@@ -283,7 +283,58 @@ def _sim_ss_terms(
 def ss_response(
     A: FloatArray, B: FloatArray, C: FloatArray, D: FloatArray, u: FloatArray, x0: FloatArray
 ) -> FloatArray:
-    """Outputs of ``x+ = Ax + Bu, y = Cx + Du`` from ``x0`` (loop over samples)."""
+    """Outputs of ``x+ = Ax + Bu, y = Cx + Du`` from ``x0``.
+
+    Long records are simulated in blocks of ``L`` samples: inside a block the output is an
+    observability product on the block's start state plus a block-Toeplitz product on its
+    inputs, and only the start states are propagated in a Python loop (``N / L`` iterations).
+    The result equals the sample-by-sample recursion to rounding error.
+    """
+    n, N = A.shape[0], u.shape[0]
+    if N < 512 or n == 0:
+        return _ss_loop(A, B, C, D, u, x0)
+    L = 32 if n > 24 else 64
+    ny, nu = C.shape[0], B.shape[1]
+    # Ob[r] = C A^r (r < L), H[r] = C A^(r-1) B (r >= 1), G[r] = A^(L-1-r) B, AL = A^L
+    Ob = np.empty((L, ny, n))
+    P = np.eye(n)
+    for r in range(L):
+        Ob[r] = C @ P
+        P = A @ P
+    AL = P
+    H = np.zeros((L, ny, nu))
+    Gs = np.empty((L, n, nu))
+    for r in range(1, L):
+        H[r] = Ob[r - 1] @ B
+    powB = B.copy()
+    for r in range(L - 1, -1, -1):
+        Gs[r] = powB
+        powB = A @ powB
+    nb = -(-N // L)
+    up = np.zeros((nb * L, nu))
+    up[:N] = u
+    Ub = up.reshape(nb, L, nu)  # [b, s, j]
+    # forced outputs: Y[b, r] = sum_{s<r} H[r-s] u[b, s]
+    T = np.zeros((L, ny, L, nu))
+    for r in range(1, L):
+        T[r, :, :r, :] = H[r:0:-1].transpose(1, 0, 2)
+    forced = (T.reshape(L * ny, L * nu) @ Ub.reshape(nb, L * nu).T).T.reshape(nb, L, ny)
+    ctrl = Gs.transpose(1, 0, 2).reshape(n, L * nu)
+    xin = (ctrl @ Ub.reshape(nb, L * nu).T).T  # (nb, n): state added by each block's inputs
+    starts = np.empty((nb, n))
+    x = np.asarray(x0, dtype=float).copy()
+    for b in range(nb):
+        starts[b] = x
+        x = AL @ x + xin[b]
+    free = np.einsum("rpn,bn->brp", Ob, starts)
+    Y = (free + forced).reshape(nb * L, ny)[:N]
+    return Y + u @ D.T
+
+
+def _ss_loop(
+    A: FloatArray, B: FloatArray, C: FloatArray, D: FloatArray, u: FloatArray, x0: FloatArray
+) -> FloatArray:
+    """Sample-by-sample recursion (short records and reference for tests)."""
     n, N = A.shape[0], u.shape[0]
     X = np.empty((N, n))
     x = np.asarray(x0, dtype=float).copy()
@@ -359,12 +410,15 @@ def _sim_arx(
         Y[:L] = y[0]
     elif not isinstance(initial, str):
         raise DataError("ARX models take initial='zero', 'model' or 'estimate', not an array.")
+    ct = CompiledTerms(rep.terms) if rep.terms else None
+    if (ct is None or rep.term_coefficients is None) and ny > 1 and N - start >= 512:
+        Y[L + start :] = _arx_block(rep, U, Y, off, L, start, N)
+        return Y[L:]
     # Input contribution for every sample at once (the inputs are known).
     forced = np.zeros((N, ny)) + off
     for lag, Gl in enumerate(G):
         if np.any(Gl):
             forced += U[L - lag : L - lag + N] @ Gl.T
-    ct = CompiledTerms(rep.terms) if rep.terms else None
     na = rep.na
     coef = rep.term_coefficients
     if (ct is None or coef is None) and ny == 1 and start < N:
@@ -409,6 +463,41 @@ def _sim_arx(
         acc += coef_t @ theta
         Y[kk] = acc
     return Y[L:]
+
+
+def _arx_block(
+    rep: ARX, U: FloatArray, Y: FloatArray, off: FloatArray, L: int, start: int, N: int
+) -> FloatArray:
+    """Linear ARX from sample ``start`` on, through its exact shift-register realisation.
+
+    The offset enters as one more input that is always 1; the realisation's initial state is
+    the history held in the padded buffers ``U`` and ``Y`` (``L`` samples before t = 0).
+    """
+    import dataclasses
+
+    from tendonkit.realize import arx_to_state_space
+
+    ny, nu = Y.shape[1], U.shape[1]
+    B = tuple(np.hstack([b, np.zeros((ny, 1))]) for b in rep.B) or (np.zeros((ny, nu + 1)),)
+    lin = dataclasses.replace(
+        rep, B=B, nk=(*rep.nk, 0), offset=None, terms=(), term_coefficients=None
+    )
+    ss = arx_to_state_space(lin, nu + 1)
+    # the offset column enters at lag 0 only (nk = 0, first B matrix)
+    ss.D[:, nu] = off
+    if rep.na:
+        ss.B[:ny, nu] = off
+    Ua = np.hstack([U, np.ones((U.shape[0], 1))])
+    kk = L + start
+    Lg = (ss.A.shape[0] - ny * rep.na) // (nu + 1)
+    x0 = (
+        np.concatenate(
+            [Y[kk - i] for i in range(1, rep.na + 1)] + [Ua[kk - j] for j in range(1, Lg + 1)]
+        )
+        if ss.A.shape[0]
+        else np.zeros(0)
+    )
+    return ss_response(ss.A, ss.B, ss.C, ss.D, Ua[kk : L + N], x0)
 
 
 # -- sparse map -----------------------------------------------------------------------------------

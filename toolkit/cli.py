@@ -105,12 +105,16 @@ def raise_problems(problems: list[str], headline: str = "The command cannot run:
 # -- identify / simulate / compare / plugins -------------------------------------------------------
 
 
-def cmd_identify(args: argparse.Namespace) -> int:
-    """Identify a model from CSV data with a registered method."""
-    from tendonkit.dataset import Dataset
+def identifier_arguments(
+    args: argparse.Namespace, problems: list[str]
+) -> tuple[list[str], list[str], dict[str, str], Any]:
+    """``--inputs``, ``--outputs``, ``--method`` and ``--option``: names, options, options object.
+
+    Every problem is appended to ``problems``; the options object is None when the method or
+    its options are invalid.
+    """
     from tendonkit.manager import identifiers
 
-    problems: list[str] = []
     inputs, outputs = split_names(args.inputs), split_names(args.outputs)
     if not outputs:
         problems.append("--outputs names no column.")
@@ -126,6 +130,16 @@ def cmd_identify(args: argparse.Namespace) -> int:
             factory = registry.get(args.method).create(**options)
         except OptionError as exc:
             problems.extend(exc.problems or [str(exc)])
+    return inputs, outputs, options, factory
+
+
+
+def cmd_identify(args: argparse.Namespace) -> int:
+    """Identify a model from CSV data with a registered method."""
+    from tendonkit.dataset import Dataset
+
+    problems: list[str] = []
+    inputs, outputs, _, factory = identifier_arguments(args, problems)
     check_output_path(args.output, args.data, problems)
     data = None
     try:
@@ -246,23 +260,10 @@ def cmd_compare(args: argparse.Namespace) -> int:
 def cmd_diagnose(args: argparse.Namespace) -> int:
     """Find what the baseline model gets wrong, name the cause, extend and measure the gain."""
     from tendonkit.dataset import Dataset
-    from tendonkit.manager import effects, identifiers
+    from tendonkit.manager import effects
 
     problems: list[str] = []
-    inputs, outputs = split_names(args.inputs), split_names(args.outputs)
-    if not outputs:
-        problems.append("--outputs names no column.")
-    options = parse_key_values(args.option, "--option", problems)
-    registry = identifiers()
-    if args.method not in registry:
-        problems.append(
-            f"unknown method {args.method!r}; registered: {', '.join(registry.names())}."
-        )
-    else:
-        try:
-            registry.get(args.method).create(**options)
-        except OptionError as exc:
-            problems.extend(exc.problems or [str(exc)])
+    inputs, outputs, options, _ = identifier_arguments(args, problems)
     chosen = split_names(args.effects) if args.effects else None
     if chosen:
         known = effects().names()
@@ -392,6 +393,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
 _EXTRA_COMMANDS: list[tuple[str, str]] = [
     # (module, function) pairs contributing subcommands that live in their own modules.
     ("tendonkit.cli_robot", "add_commands"),
+    ("tendonkit.cli_mpc", "add_commands"),
 ]
 
 

@@ -1,0 +1,607 @@
+"""Build the plant FMU and model FMUs with pythonfmu, then make their modelDescription.xml complete.
+
+pythonfmu writes a valid archive but an incomplete model description: no units, an empty
+``InitialUnknowns``, no output dependencies and capability flags that do not match a fixed-step
+slave.  :func:`finalize_model_description` rewrites ``modelDescription.xml`` inside the archive
+so that :func:`fmpy.validation.validate_fmu` reports no problem:
+
+* ``UnitDefinitions`` for every unit used (SI base-unit exponents for the known ones);
+* ``unit`` on every Real variable that has one;
+* ``ModelStructure/Outputs`` with explicit ``dependencies`` (empty = no direct feedthrough);
+* ``ModelStructure/InitialUnknowns`` for every calculated output;
+* ``DefaultExperiment`` with the fixed step and ``canHandleVariableCommunicationStepSize="false"``.
+
+Plant FMUs built for the same parameters are cached (:func:`cached_plant_fmu`), keyed by the
+parameters and the slave source.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import re
+import shutil
+import sys
+import tempfile
+import xml.etree.ElementTree as ET
+import zipfile
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from tendonkit.errors import FMUError, OptionError, raise_if
+from tendonkit.fmu._config import PRESETS, PlantConfig, config_from_dict, config_to_dict
+from tendonkit.robot import RobotParameters
+from tendonkit.schema import Model
+
+__all__ = [
+    "EFFECT_SWITCHES",
+    "UNIT_BASES",
+    "build_model_fmu",
+    "build_plant_fmu",
+    "cached_plant_fmu",
+    "finalize_model_description",
+    "model_fmu_problems",
+    "plant_parameters",
+]
+
+_HERE = Path(__file__).resolve().parent
+_IDENTIFIER = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+
+#: SI base-unit exponents of the units our FMUs use (FMI 2.0 ``BaseUnit`` attributes).
+UNIT_BASES: dict[str, dict[str, int]] = {
+    "N": {"kg": 1, "m": 1, "s": -2},
+    "rad": {"rad": 1},
+    "m": {"m": 1},
+    "s": {"s": 1},
+    "Hz": {"s": -1},
+    "kg": {"kg": 1},
+    "m/s": {"m": 1, "s": -1},
+    "m/s2": {"m": 1, "s": -2},
+    "N/m": {"kg": 1, "s": -2},
+    "kg.m2": {"kg": 1, "m": 2},
+    "N.m": {"kg": 1, "m": 2, "s": -2},
+    "N.m/rad": {"kg": 1, "m": 2, "s": -2, "rad": -1},
+    "rad/s": {"rad": 1, "s": -1},
+    "cm": {"m": 1},
+    "mm": {"m": 1},
+    "deg": {"rad": 1},
+}
+_UNIT_FACTORS = {"cm": 0.01, "mm": 0.001, "deg": 0.017453292519943295}
+
+#: Short effect switches of ``--effect`` (plant spec §10): letter -> (switch, primary parameter).
+#: A bare letter turns the effect on at its spec defaults; ``LETTER=VALUE`` also sets the
+#: primary parameter (``G`` takes a mount name and defaults to ``horiz_tilt``).
+EFFECT_SWITCHES: dict[str, tuple[str | None, str]] = {
+    "A": ("friction_on", "friction_mu_k"),
+    "B": ("backlash_on", "backlash_b"),
+    "D": ("delay_on", "delay_s"),
+    "Z": ("deadzone_on", "deadzone_T"),
+    "F": ("forcelag_on", "forcelag_tau"),
+    "G": (None, "mount"),
+    "K": ("hardening_on", "hardening_k3"),
+    "N": ("noise_on", "noise_sigma_q"),
+    "L": ("camera_on", "camera_fc"),
+}
+_MU_S_OVER_MU_K = PlantConfig().friction_mu_s / PlantConfig().friction_mu_k
+
+
+# ------------------------------------------------------------------------------- parameters
+def plant_parameters(
+    effects: Iterable[str] | Mapping[str, Any] | None = None,
+    preset: str = "nominal",
+    base: Mapping[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Resolve ``--effect`` items and a preset into validated flat plant parameters.
+
+    Parameters
+    ----------
+    effects : iterable of str or mapping, optional
+        Items ``NAME=VALUE`` (flat names of :func:`~tendonkit.fmu.plant.config_to_dict`) or
+        short switches ``A``, ``B``, ``D``, ``Z``, ``F``, ``G``, ``K``, ``N``, ``L`` with an
+        optional value for the effect's primary parameter (:data:`EFFECT_SWITCHES`); or a
+        mapping ``name -> value`` of either kind.
+    preset : str
+        Base configuration, ``"nominal"`` or ``"paper_like"``.
+    base : mapping, optional
+        Flat parameters to start from instead of the preset (e.g. an FMU's start values).
+
+    Returns
+    -------
+    dict
+        The complete flat parameter set (every name, validated).
+
+    Raises
+    ------
+    OptionError
+        Listing every problem: unknown names (with the valid ones), malformed items, values
+        out of range and inconsistent combinations.
+
+    Examples
+    --------
+    >>> p = plant_parameters(["A", "D=0.12"])
+    >>> p["friction_on"], p["delay_on"], p["delay_s"]
+    (True, True, 0.12)
+    """
+    problems: list[str] = []
+    if preset not in PRESETS:
+        problems.append(f"unknown preset {preset!r}; presets: {', '.join(PRESETS)}")
+        preset = "nominal"
+    items: list[tuple[str, str | None]] = []
+    if isinstance(effects, Mapping):
+        items = [(str(k), None if v is None else str(v)) for k, v in effects.items()]
+    else:
+        for item in effects or []:
+            name, sep, text = str(item).partition("=")
+            if not name.strip() or (sep and not text.strip()):
+                problems.append(f"effect {item!r} is not NAME, NAME=VALUE or a switch letter")
+                continue
+            items.append((name.strip(), text.strip() if sep else None))
+    kinds = config_to_dict(PlantConfig())
+    flat_names = tuple(kinds)
+    values: dict[str, Any] = {}
+    explicit: set[str] = set()
+    unknown: list[str] = []
+    for key, value in items:
+        if key in EFFECT_SWITCHES:
+            switch, primary = EFFECT_SWITCHES[key]
+            if switch is not None:
+                values[switch] = True
+            if key == "G":
+                values["mount"] = value or "horiz_tilt"
+            elif value is not None:
+                values[primary] = value
+        elif key in flat_names:
+            if value is None:
+                if key.endswith("_on"):
+                    value = "1"
+                else:
+                    problems.append(f"parameter {key!r} needs a value ({key}=VALUE)")
+                    continue
+            if key in explicit:
+                problems.append(f"parameter {key!r} is given twice")
+            values[key] = value
+            explicit.add(key)
+        else:
+            unknown.append(key)
+    if unknown:
+        problems.append(
+            f"unknown effects or parameters: {', '.join(map(repr, unknown))}; "
+            f"switches: {', '.join(EFFECT_SWITCHES)}; parameters: {', '.join(flat_names)}"
+        )
+    for name in list(values):  # convert now so that every range problem is reported too
+        try:
+            values[name] = _coerce(kinds[name], values[name])
+        except (TypeError, ValueError):
+            problems.append(f"{name} has an invalid value {values.pop(name)!r}")
+    if "friction_mu_k" in values and "friction_mu_s" not in explicit:
+        # keep the default static/kinetic ratio unless mu_s is given
+        values["friction_mu_s"] = values["friction_mu_k"] * _MU_S_OVER_MU_K
+    merged = {**(PRESETS[preset] if base is None else base), **values}
+    try:
+        config, robot = config_from_dict(merged)
+    except OptionError as exc:
+        problems.extend(exc.problems or [str(exc)])
+    raise_if(problems, OptionError, "Invalid plant effects:")
+    return dict(config_to_dict(config, robot))
+
+
+def _coerce(kind: Any, value: Any) -> Any:
+    """Convert a command-line value to the type of the parameter's default ``kind``."""
+    if isinstance(kind, bool):
+        low = str(value).strip().lower()
+        if low in ("1", "true", "yes", "on"):
+            return True
+        if low in ("0", "false", "no", "off"):
+            return False
+        raise ValueError(value)
+    if isinstance(kind, int):
+        number = float(value)
+        if not number.is_integer():
+            raise ValueError(value)
+        return int(number)
+    if isinstance(kind, float):
+        return float(value)
+    return str(value)
+
+
+# ------------------------------------------------------------------------------- building
+def build_plant_fmu(
+    path: str | Path,
+    config: PlantConfig | None = None,
+    robot: RobotParameters | None = None,
+) -> Path:
+    """Build the plant FMU with ``config`` and ``robot`` as its parameter start values.
+
+    Parameters
+    ----------
+    path : str or Path
+        The ``.fmu`` file to write (written atomically).
+    config : PlantConfig, optional
+        Hidden effects; nominal by default.
+    robot : RobotParameters, optional
+        Geometry; nominal by default.
+
+    Returns
+    -------
+    Path
+        ``path``.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> out = build_plant_fmu(pathlib.Path(tempfile.mkdtemp()) / "plant.fmu")
+    >>> out.suffix
+    '.fmu'
+    """
+    from tendonkit.fmu import plant_fmu as slave
+
+    params = config_to_dict(config or PlantConfig(), robot)
+    resources = {slave.PARAMETER_FILE: json.dumps(params, indent=1)}
+    units = {**slave.SIGNAL_UNITS, **slave.PARAMETER_UNITS}
+    outputs = {name: () for name in slave.OUTPUTS}  # no direct feedthrough
+    parameters = tuple(params)
+    return _build(
+        _HERE / "plant_fmu.py",
+        path,
+        resources,
+        step_size=slave.STEP,
+        stop_time=10.0,
+        units=units,
+        outputs=outputs,
+        initial_unknowns=dict.fromkeys(slave.OUTPUTS, parameters),
+    )
+
+
+def cached_plant_fmu(
+    parameters: Mapping[str, Any] | None = None, cache_dir: str | Path | None = None
+) -> Path:
+    """A plant FMU for ``parameters`` from the cache, built on first use.
+
+    Parameters
+    ----------
+    parameters : mapping, optional
+        Flat plant parameters (e.g. from :func:`plant_parameters`); nominal by default.
+    cache_dir : str or Path, optional
+        Defaults to ``$TENDONKIT_CACHE`` or ``$XDG_CACHE_HOME/tendonkit`` (``~/.cache/tendonkit``).
+
+    Returns
+    -------
+    Path
+        The cached FMU, keyed by the parameters, the slave source and the pythonfmu version.
+    """
+    import pythonfmu
+
+    config, robot = config_from_dict(dict(parameters or {}))
+    params = config_to_dict(config, robot)
+    digest = hashlib.sha256()
+    digest.update(json.dumps(params, sort_keys=True).encode())
+    digest.update((_HERE / "plant_fmu.py").read_bytes())
+    digest.update((_HERE / "build.py").read_bytes())
+    digest.update(str(getattr(pythonfmu, "__version__", "")).encode())
+    folder = Path(cache_dir) if cache_dir is not None else _cache_root() / "plant"
+    target = folder / f"plant-{digest.hexdigest()[:16]}.fmu"
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        if not target.is_file():
+            build_plant_fmu(target, config, robot)
+    except OSError as exc:
+        raise FMUError(
+            f"Cannot write the plant FMU cache in {str(folder)!r} ({exc}); set TENDONKIT_CACHE "
+            "to a writable folder or build one with 'tendonkit plant build'."
+        ) from None
+    return target
+
+
+def _cache_root() -> Path:
+    if os.environ.get("TENDONKIT_CACHE"):
+        return Path(os.environ["TENDONKIT_CACHE"])
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "tendonkit"
+
+
+def _build(
+    script: Path,
+    path: str | Path,
+    resources: Mapping[str, str | bytes],
+    *,
+    step_size: float,
+    stop_time: float,
+    units: Mapping[str, str],
+    outputs: Mapping[str, Sequence[str]],
+    initial_unknowns: Mapping[str, Sequence[str] | None],
+    naming: str = "structured",
+) -> Path:
+    """Run pythonfmu on a private copy of ``script`` and finalise the model description."""
+    from pythonfmu.builder import FmuBuilder
+
+    path = Path(path)
+    if not path.parent.is_dir():
+        raise FMUError(f"The folder of {str(path)!r} does not exist.")
+    module = script.stem
+    saved_path = list(sys.path)
+    had_module = module in sys.modules
+    with tempfile.TemporaryDirectory(prefix="tendonkit_fmu_") as tmp:
+        src = Path(tmp) / "src"
+        src.mkdir()
+        shutil.copy2(script, src / script.name)
+        extra = []
+        for name, content in resources.items():
+            target = src / name
+            if isinstance(content, bytes):
+                target.write_bytes(content)
+            else:
+                target.write_text(content, encoding="utf-8")
+            extra.append(target)
+        built = Path(tmp) / "out.fmu"
+        try:
+            FmuBuilder.build_FMU(src / script.name, dest=built, project_files=extra)
+        except Exception as exc:  # pythonfmu raises bare exceptions
+            raise FMUError(f"pythonfmu could not build {script.name}: {exc}") from exc
+        finally:
+            sys.path[:] = saved_path  # pythonfmu leaves the script folder on sys.path
+            if not had_module:
+                sys.modules.pop(module, None)
+        finalize_model_description(
+            built,
+            step_size=step_size,
+            stop_time=stop_time,
+            units=units,
+            outputs=outputs,
+            initial_unknowns=initial_unknowns,
+            naming=naming,
+        )
+        fd, tmp_out = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+        os.close(fd)
+        try:
+            shutil.copyfile(built, tmp_out)
+            os.replace(tmp_out, path)
+        finally:
+            if os.path.exists(tmp_out):
+                os.unlink(tmp_out)
+    return path
+
+
+def model_fmu_problems(model: Model, kinematics: bool = True) -> list[str]:
+    """Why ``model`` cannot be exported (empty when it can).
+
+    Parameters
+    ----------
+    model : Model
+    kinematics : bool
+        Whether q3..q6 and the end effector are to be reconstructed, which needs outputs
+        named ``q1`` and ``q2`` (pan and tilt base joints, rad).
+
+    Returns
+    -------
+    list of str
+    """
+    from tendonkit.fmu.model_fmu import EE, JOINTS, RATIO_NAMES
+
+    problems = []
+    if not model.inputs:
+        problems.append(f"model {model.name!r} has no inputs; an FMU needs at least one.")
+    if kinematics:
+        missing = [n for n in ("q1", "q2") if n not in model.output_names]
+        if missing:
+            problems.append(
+                "the kinematic reconstruction needs model outputs named q1 and q2 (the base "
+                f"pan and tilt joints, rad); model {model.name!r} has outputs "
+                f"{', '.join(model.output_names)}. Rename them or export with --no-kinematics."
+            )
+        taken = sorted(set(model.input_names + model.output_names) & {*JOINTS, *EE, *RATIO_NAMES})
+        if taken:
+            problems.append(
+                f"the model already has signals named {', '.join(taken)}, which the kinematic "
+                "reconstruction adds; export with --no-kinematics."
+            )
+    return problems
+
+
+def build_model_fmu(
+    model: Model,
+    path: str | Path,
+    ratios: Sequence[float] | None = None,
+    kinematics: bool = True,
+    robot: RobotParameters | None = None,
+) -> Path:
+    """Export ``model`` as an FMI 2.0 co-simulation FMU (see :mod:`tendonkit.fmu.model_fmu`).
+
+    Parameters
+    ----------
+    model : Model
+        Any representation of the schema, with any blocks.
+    path : str or Path
+        The ``.fmu`` file to write (atomically).
+    ratios : sequence of 4 float, optional
+        Start values of ``ratio_3..ratio_6`` (q3/q1, q4/q2, q5/q1, q6/q2); the paper's by
+        default.
+    kinematics : bool
+        Add q3..q6 and the end effector (needs outputs ``q1`` and ``q2``).
+    robot : RobotParameters, optional
+        Geometry of the forward kinematics; the nominal robot by default.
+
+    Returns
+    -------
+    Path
+        ``path``.
+
+    Raises
+    ------
+    OptionError
+        The model cannot be exported as asked (every reason listed).
+    """
+    from tendonkit.fmu import model_fmu as slave
+    from tendonkit.robot import PAPER_RATIOS
+    from tendonkit.stepper import feedthrough
+
+    problems = model_fmu_problems(model, kinematics)
+    r = tuple(float(x) for x in (ratios if ratios is not None else PAPER_RATIOS[2:]))
+    if len(r) != 4:
+        problems.append(f"ratios must hold 4 numbers (q3/q1, q4/q2, q5/q1, q6/q2), found {r}.")
+    raise_if(problems, OptionError, f"Model {model.name!r} cannot be exported:")
+    config = {
+        "kinematics": kinematics,
+        "ratios": list(r),
+        "robot": (robot or RobotParameters()).to_dict(),
+    }
+    resources = {slave.MODEL_FILE: model.to_json(), slave.CONFIG_FILE: json.dumps(config)}
+    inputs, outputs, _ = slave.export_layout(model, kinematics)
+    units = {s.name: s.unit for s in (*model.inputs, *model.outputs) if s.unit}
+    if kinematics:
+        units.update(dict.fromkeys(slave.JOINTS, "rad"))
+        units.update(dict.fromkeys(slave.EE, "m"))
+    deps = feedthrough(model)  # after the first sample: inputs only
+    first = feedthrough(model, initial=True)  # initialisation: inputs and the ratios
+    if kinematics:
+        for table, with_ratios in ((deps, False), (first, True)):
+            _add_kinematic_dependencies(table, model.input_names, with_ratios)
+    naming = "structured" if all(_IDENTIFIER.match(n) for n in inputs + outputs) else "flat"
+    return _build(
+        _HERE / "model_fmu.py",
+        path,
+        resources,
+        step_size=float(model.dt),
+        stop_time=float(model.dt) * 1000,
+        units=units,
+        outputs={name: deps[name] for name in outputs},
+        initial_unknowns={name: first[name] for name in outputs},
+        naming=naming,
+    )
+
+
+def _add_kinematic_dependencies(
+    table: dict[str, list[str]], inputs: Sequence[str], with_ratios: bool
+) -> None:
+    """Dependencies of q3..q6 (one ratio times q1 or q2) and of the end effector (all)."""
+    from tendonkit.fmu.model_fmu import EE, RATIO_NAMES
+
+    pan, tilt = table["q1"], table["q2"]
+    for joint, base, ratio in (("q3", pan, 0), ("q4", tilt, 1), ("q5", pan, 2), ("q6", tilt, 3)):
+        table[joint] = [*base, *([RATIO_NAMES[ratio]] if with_ratios else [])]
+    both = [name for name in inputs if name in pan or name in tilt]
+    for name in EE:
+        table[name] = [*both, *(RATIO_NAMES if with_ratios else ())]
+
+
+# ------------------------------------------------------------------------------- XML
+def finalize_model_description(
+    fmu: str | Path,
+    *,
+    step_size: float,
+    stop_time: float,
+    units: Mapping[str, str],
+    outputs: Mapping[str, Sequence[str]],
+    initial_unknowns: Mapping[str, Sequence[str] | None],
+    naming: str = "structured",
+) -> None:
+    """Rewrite ``modelDescription.xml`` inside ``fmu`` (see module docs).
+
+    Parameters
+    ----------
+    fmu : str or Path
+        An FMU written by pythonfmu; rewritten in place.
+    step_size, stop_time : float
+        The fixed communication step and the default stop time, s.
+    units : mapping
+        Variable name -> unit name (variables not listed have no unit).
+    outputs : mapping
+        Every output name -> the names of the inputs it depends on directly at the same
+        communication point (empty: no direct feedthrough).
+    initial_unknowns : mapping
+        Calculated output name -> the knowns its initial value depends on (``None``: all).
+    naming : str
+        ``variableNamingConvention``: ``"structured"`` or ``"flat"``.
+    """
+    fmu = Path(fmu)
+    with zipfile.ZipFile(fmu) as zf:
+        entries = {info.filename: zf.read(info.filename) for info in zf.infolist()}
+    root = ET.fromstring(entries["modelDescription.xml"])
+    root.set("variableNamingConvention", naming)
+    from tendonkit import __version__
+
+    root.set("version", __version__)
+    cosim = root.find("CoSimulation")
+    assert cosim is not None
+    for flag, value in (
+        ("needsExecutionTool", True),
+        ("canHandleVariableCommunicationStepSize", False),
+        ("canInterpolateInputs", False),
+        ("maxOutputDerivativeOrder", 0),
+        ("canRunAsynchronuously", False),
+        ("canBeInstantiatedOnlyOncePerProcess", False),
+        ("canNotUseMemoryManagementFunctions", True),
+        ("canGetAndSetFMUstate", False),
+        ("canSerializeFMUstate", False),
+        ("providesDirectionalDerivative", False),
+    ):
+        cosim.set(flag, str(value).lower())
+    variables = root.find("ModelVariables")
+    assert variables is not None
+    index: dict[str, int] = {}
+    used_units: list[str] = []
+    for i, sv in enumerate(variables.findall("ScalarVariable"), start=1):
+        name = sv.get("name", "")
+        index[name] = i
+        unit = units.get(name)
+        real = sv.find("Real")
+        if unit and real is not None:
+            real.set("unit", unit)
+            if unit not in used_units:
+                used_units.append(unit)
+    missing = [n for n in (*outputs, *initial_unknowns) if n not in index]
+    if missing:
+        raise FMUError(f"finalize_model_description: unknown variables {missing}.")
+    position = list(root).index(cosim) + 1
+    for tag in ("UnitDefinitions", "DefaultExperiment"):
+        for old in root.findall(tag):
+            root.remove(old)
+    if used_units:
+        root.insert(position, _unit_definitions(used_units))
+    experiment = ET.Element(
+        "DefaultExperiment",
+        {"startTime": "0.0", "stopTime": repr(float(stop_time)), "stepSize": repr(step_size)},
+    )
+    root.insert(list(root).index(variables), experiment)
+    structure = root.find("ModelStructure")
+    if structure is not None:
+        root.remove(structure)
+    structure = ET.SubElement(root, "ModelStructure")
+    if outputs:
+        node = ET.SubElement(structure, "Outputs")
+        for name in sorted(outputs, key=index.__getitem__):
+            deps = sorted(index[d] for d in outputs[name])
+            ET.SubElement(
+                node,
+                "Unknown",
+                {"index": str(index[name]), "dependencies": " ".join(map(str, deps))},
+            )
+    if initial_unknowns:
+        node = ET.SubElement(structure, "InitialUnknowns")
+        for name in sorted(initial_unknowns, key=index.__getitem__):
+            attrib = {"index": str(index[name])}
+            known = initial_unknowns[name]
+            if known is not None:
+                attrib["dependencies"] = " ".join(map(str, sorted(index[d] for d in known)))
+            ET.SubElement(node, "Unknown", attrib)
+    ET.indent(root, space="  ")
+    entries["modelDescription.xml"] = ET.tostring(root, encoding="UTF-8", xml_declaration=True)
+    tmp = fmu.with_name(fmu.name + ".tmp")
+    with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+        for name, data in entries.items():
+            zf.writestr(name, data)
+    os.replace(tmp, fmu)
+
+
+def _unit_definitions(names: Sequence[str]) -> ET.Element:
+    node = ET.Element("UnitDefinitions")
+    for name in names:
+        unit = ET.SubElement(node, "Unit", {"name": name})
+        base = UNIT_BASES.get(name)
+        if base is not None:
+            attrib = {k: str(v) for k, v in base.items()}
+            if name in _UNIT_FACTORS:
+                attrib["factor"] = repr(_UNIT_FACTORS[name])
+            ET.SubElement(unit, "BaseUnit", attrib)
+    return node

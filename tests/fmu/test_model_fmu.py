@@ -1,0 +1,299 @@
+"""Model export: every representation becomes a valid FMU whose outputs equal ``simulate``.
+
+Reference: ``simulate(model, u, initial="model")``, the constant-ratio reconstruction
+(``expand_joints``) and the forward kinematics.  Tolerance 1e-9 (rad, m): the FMU evaluates the
+model sample by sample (``Stepper``, itself equal to ``simulate`` to ~1e-13 on these models) and
+the kinematics per sample instead of vectorised; 1e-9 leaves room for the rounding of identified
+models whose states are of order 1e2 and still catches any wrong sample alignment (~1e-3).
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import xml.etree.ElementTree as ET
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import tendonkit as tk
+from tendonkit.cli import main
+from tendonkit.errors import OptionError
+from tendonkit.fmu.build import build_model_fmu
+from tendonkit.fmu.plant import Plant
+from tendonkit.kinematics import expand_joints, forward_kinematics
+from tendonkit.protocol import pseudo_random
+from tendonkit.schema import ARX, Block, Model, Signal, SparseMap, StateSpace
+from tendonkit.simulate import simulate
+from tendonkit.terms import Factor, Term
+
+pytest.importorskip("fmpy")
+
+TOL = 1e-9
+INPUTS = ["T1", "T2", "T3", "T4"]
+JOINT_OUTPUTS = ["q1", "q2", "q3", "q4", "q5", "q6", "ee_x", "ee_y", "ee_z"]
+
+
+def plant_data(seed: int, seconds: float) -> tk.Dataset:
+    """Measured forces -> measured base joints of the nominal plant (the paper's setting)."""
+    rec = Plant().record(pseudo_random(seconds, seed=seed).u)
+    return tk.Dataset.from_arrays(
+        rec["T_meas"], rec["q"][:, :2], dt=0.03, inputs=INPUTS, outputs=["q1", "q2"]
+    )
+
+
+@pytest.fixture(scope="module")
+def identified():
+    train = plant_data(1, 90.0)
+    return {
+        "n4sid": tk.identify(train, "n4sid", order=8),
+        "arx": tk.identify(train, "arx", na=4, nb=4, nk=0),
+        "sindyc": tk.identify(train, "sindyc"),
+    }
+
+
+@pytest.fixture(scope="module")
+def validation():
+    return plant_data(2, 15.0).experiments[0].u
+
+
+def reference(model: Model, u: np.ndarray, ratios=None) -> np.ndarray:
+    y = simulate(model, u, initial="model")
+    iq = [model.output_names.index("q1"), model.output_names.index("q2")]
+    q = expand_joints(y[:, iq], ratios if ratios is not None else tk.robot.PAPER_RATIOS)
+    return np.hstack([y, q[:, 2:], forward_kinematics(q)])
+
+
+def run_fmu(path: Path, u: np.ndarray, inputs, outputs, start=None, changes=None) -> np.ndarray:
+    """fmpy, FMI co-simulation order at each point: set inputs, read outputs, doStep."""
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Slave
+
+    md = read_model_description(str(path))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    dt = float(md.defaultExperiment.stepSize)
+    fmu = FMU2Slave(
+        guid=md.guid,
+        unzipDirectory=extract(str(path)),
+        modelIdentifier=md.coSimulation.modelIdentifier,
+        instanceName="model",
+    )
+    fmu.instantiate()
+    for name, value in (start or {}).items():
+        fmu.setReal([vr[name]], [value])
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    fmu.exitInitializationMode()
+    vin, vout = [vr[n] for n in inputs], [vr[n] for n in outputs]
+    rows = []
+    try:
+        for k, row in enumerate(u):
+            for name, value in (changes or {}).get(k, {}).items():
+                fmu.setReal([vr[name]], [value])
+            fmu.setReal(vin, list(row))
+            rows.append(fmu.getReal(vout))
+            fmu.doStep(k * dt, dt)
+    finally:
+        fmu.terminate()
+        fmu.freeInstance()
+    return np.array(rows)
+
+
+def fmutool_check(path: Path) -> str:
+    exe = Path(sys.executable).with_name("fmutool")
+    r = subprocess.run(
+        [str(exe), "-input", str(path), "-check"], capture_output=True, text=True, timeout=120
+    )
+    return r.stdout + r.stderr
+
+
+def assert_valid(path: Path) -> None:
+    from fmpy.validation import validate_fmu
+
+    assert validate_fmu(str(path)) == []
+    report = fmutool_check(path)
+    assert "ERROR" not in report, report
+    assert "seems to be compliant with FMI-2.0" in report
+    assert "No semantic error" in report
+
+
+@pytest.mark.parametrize("method", ["n4sid", "arx", "sindyc"])
+def test_identified_models_export_validate_and_match_simulate(
+    tmp_path, identified, validation, method
+):
+    model = identified[method]
+    path = build_model_fmu(model, tmp_path / f"{method}.fmu")
+    assert_valid(path)
+    got = run_fmu(path, validation, INPUTS, JOINT_OUTPUTS)
+    want = reference(model, validation)
+    assert np.ptp(want[:, 0]) > 0.05  # the validation record really moves the joints
+    np.testing.assert_allclose(got, want, rtol=0, atol=TOL)
+
+
+def _root(path: Path) -> ET.Element:
+    with zipfile.ZipFile(path) as zf:
+        return ET.fromstring(zf.read("modelDescription.xml"))
+
+
+def _dependencies(path: Path) -> dict[str, str]:
+    root = _root(path)
+    names = [sv.get("name") for sv in root.iter("ScalarVariable")]
+    deps = {}
+    for u in root.find("ModelStructure/Outputs"):
+        deps[names[int(u.get("index")) - 1]] = " ".join(
+            names[int(i) - 1] for i in u.get("dependencies").split()
+        )
+    return deps
+
+
+def test_feedthrough_is_declared_only_where_it_exists(tmp_path, identified):
+    arx = build_model_fmu(identified["arx"], tmp_path / "arx.fmu")  # nk = 0: direct
+    n4sid = build_model_fmu(identified["n4sid"], tmp_path / "n4sid.fmu")  # D = 0
+    assert _dependencies(arx)["q1"] == "T1 T2 T3 T4"
+    assert _dependencies(arx)["ee_y"] == "T1 T2 T3 T4"
+    assert set(_dependencies(n4sid).values()) == {""}
+    root = _root(arx)
+    assert float(root.find("DefaultExperiment").get("stepSize")) == 0.03
+    assert root.find("CoSimulation").get("canHandleVariableCommunicationStepSize") == "false"
+    units = {sv.get("name"): sv[0].get("unit") for sv in root.iter("ScalarVariable")}
+    assert units["T1"] is None  # the identified model's signals carry no unit
+    assert units["q4"] == "rad" and units["ee_z"] == "m"
+
+
+def _synthetic(kind: str) -> Model:
+    """Models no identifier made: every representation with terms, offsets and all blocks."""
+    rng = np.random.default_rng(5)
+    ins = tuple(Signal(n, "N") for n in INPUTS)
+    outs = (Signal("q1", "rad"), Signal("q2", "rad"))
+    blocks_in = (
+        Block("delay", "T1", {"samples": 2.0}),
+        Block("dead_zone", "T2", {"threshold": 2.0, "center": 105.0}),
+        Block("play", "T3", {"width": 1.0}),
+        Block("first_order_lag", "T4", {"pole": 0.6}),
+        Block("rate_limit", "T1", {"rate": 5.0}),
+        Block("saturation", "T3", {"lower": 40.0, "upper": 170.0}),
+    )
+    blocks_out = (
+        Block("play", "q1", {"width": 0.002}),
+        Block("first_order_lag", "q2", {"pole": 0.3}),
+    )
+    if kind == "state_space":
+        a = rng.normal(size=(3, 3))
+        rep = StateSpace(
+            0.9 * a / np.max(np.abs(np.linalg.eigvals(a))),
+            1e-3 * rng.normal(size=(3, 4)),
+            rng.normal(size=(2, 3)),
+            1e-4 * rng.normal(size=(2, 4)),
+            x0=0.01 * rng.normal(size=3),
+            terms=(Term((Factor("q1", fn="sin"),)), Term((Factor("T2", diff=1),))),
+            E=1e-3 * rng.normal(size=(3, 2)),
+        )
+        return Model(kind, 0.03, ins, outs, rep, input_blocks=blocks_in, output_blocks=blocks_out)
+    if kind == "arx":
+        rep = ARX(
+            A=(np.array([[-0.8, 0.0], [0.0, -0.7]]),),
+            B=(1e-3 * rng.normal(size=(2, 4)),),
+            nk=(0, 1, 0, 2),
+            offset=np.array([-0.01, 0.02]),
+            terms=(Term((Factor("q1", fn="tanh", lag=1),)), Term((Factor("T1", scale=0.01),))),
+            term_coefficients=1e-3 * rng.normal(size=(2, 2)),
+        )
+        return Model(kind, 0.03, ins, outs, rep, input_blocks=blocks_in, output_blocks=blocks_out)
+    terms = (
+        Term(),
+        Term((Factor("s1"),)),
+        Term((Factor("s2", lag=1),)),
+        Term((Factor("T1", offset=105.0, scale=0.01),)),
+        Term((Factor("T2", offset=105.0, scale=0.01, lag=2), Factor("s1", fn="cos"))),
+    )
+    coef = np.array([[0.0, 0.0], [0.9, 0.05], [0.0, 0.85], [0.01, 0.0], [0.0, 0.01]])
+    rep = SparseMap(terms, coef, output_states=(0, 1), x0=np.array([0.01, -0.02]))
+    states = (Signal("s1", "rad"), Signal("s2", "rad"))
+    return Model(kind, 0.05, ins, outs, rep, states=states, input_blocks=blocks_in)
+
+
+@pytest.mark.parametrize("kind", ["state_space", "arx", "sparse_map"])
+def test_every_representation_with_terms_and_blocks_exports(tmp_path, validation, kind):
+    model = _synthetic(kind)
+    path = build_model_fmu(model, tmp_path / f"{kind}.fmu", ratios=(0.6, 0.62, 0.2, 0.25))
+    assert_valid(path)
+    units = {sv.get("name"): sv[0].get("unit") for sv in _root(path).iter("ScalarVariable")}
+    assert units["T1"] == "N" and units["q1"] == "rad"
+    got = run_fmu(path, validation, INPUTS, JOINT_OUTPUTS)
+    want = reference(model, validation, ratios=(0.6, 0.62, 0.2, 0.25))
+    assert np.all(np.isfinite(want))
+    np.testing.assert_allclose(got, want, rtol=0, atol=TOL)
+
+
+def test_ratios_are_tunable_during_the_run(tmp_path, identified, validation):
+    model = identified["n4sid"]
+    path = build_model_fmu(model, tmp_path / "m.fmu")
+    u = validation[:100]
+    got = run_fmu(path, u, INPUTS, ["q1", "q3", "q6"], changes={50: {"ratio_3": 0.5}})
+    np.testing.assert_allclose(got[:50, 1], 0.6493 * got[:50, 0], rtol=1e-12)
+    np.testing.assert_allclose(got[50:, 1], 0.5 * got[50:, 0], rtol=1e-12)
+    np.testing.assert_allclose(got[:, 2], 0.2291 * reference(model, u)[:, 1], atol=TOL)
+
+
+def test_no_kinematics_exports_any_output_names_and_other_steps_are_refused(tmp_path):
+    from fmpy import extract, read_model_description
+    from fmpy.fmi1 import FMICallException
+    from fmpy.fmi2 import FMU2Slave
+
+    model = tk.testsystems.random_state_space(3, 2, 2, seed=1, dt=0.1)
+    with pytest.raises(OptionError, match="outputs named q1 and q2"):
+        build_model_fmu(model, tmp_path / "k.fmu")
+    path = build_model_fmu(model, tmp_path / "plain.fmu", kinematics=False)
+    assert_valid(path)
+    md = read_model_description(str(path))
+    assert [v.name for v in md.modelVariables if v.causality == "output"] == ["y1", "y2"]
+    u = np.random.default_rng(0).normal(size=(30, 2))
+    got = run_fmu(path, u, model.input_names, model.output_names)
+    np.testing.assert_allclose(got, simulate(model, u, initial="model"), rtol=0, atol=TOL)
+    fmu = FMU2Slave(
+        guid=md.guid,
+        unzipDirectory=extract(str(path)),
+        modelIdentifier=md.coSimulation.modelIdentifier,
+        instanceName="x",
+    )
+    fmu.instantiate()
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    fmu.exitInitializationMode()
+    with pytest.raises(FMICallException, match="discard"):
+        fmu.doStep(0.0, 0.03)
+    fmu.doStep(0.0, 0.1)  # the model's own step still works
+    fmu.terminate()
+    fmu.freeInstance()
+
+
+def test_export_cli_with_ratios_file_and_clear_errors(tmp_path, identified, capsys):
+    model_file = tmp_path / "m.json"
+    identified["arx"].save(model_file)
+    ratios = tmp_path / "ratios.json"
+    ratios.write_text(json.dumps({"ratio_3": 0.6, "ratio_4": 0.61, "ratio_5": 0.2, "ratio_6": 0.3}))
+    out = tmp_path / "m.fmu"
+    assert main(["export", str(model_file), "-o", str(out), "--ratios", str(ratios)]) == 0
+    assert "exported" in capsys.readouterr().out
+    start = {sv.get("name"): sv[0].get("start") for sv in _root(out).iter("ScalarVariable")}
+    assert float(start["ratio_4"]) == 0.61 and float(start["ratio_6"]) == 0.3
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"ratio_3": 2.0, "ratio_9": 1, "ratio_5": "x"}))
+    plain = tmp_path / "plain.json"
+    tk.testsystems.random_state_space(2, 1, 1, seed=0).save(plain)
+    assert main(["export", str(plain), "-o", str(tmp_path / "p.txt"), "--ratios", str(bad)]) == 2
+    err = capsys.readouterr().err
+    for text in (
+        "must end in .fmu",
+        "unknown keys ['ratio_9']",
+        "ratio_3 must be in (0, 1]",
+        "ratio_5 must be a number",
+        "ratio_4 must be a number",
+        "needs model outputs named q1 and q2",
+    ):
+        assert text in err
+    assert main(["export", str(tmp_path / "missing.json"), "-o", str(out)]) == 2
+    assert "does not exist" in capsys.readouterr().err

@@ -1,0 +1,406 @@
+"""Step-wise evaluation of a model: one sample at a time, as an FMU or a controller needs it.
+
+:class:`Stepper` has the semantics of :func:`tendonkit.simulate.simulate` with
+``initial="model"``, sample by sample, for every representation of the schema and every block
+kind.  Over a whole sequence, ``[stepper.step(u[k]) for k in ...]`` equals
+``simulate(model, u, initial="model")`` to rounding.  The conventions it follows:
+
+* input blocks act on the inputs before the dynamics, output blocks on the modelled outputs
+  after them, in their listed order; a ``delay`` is padded with its first input sample,
+  ``play``, ``rate_limit`` and ``first_order_lag`` start at their first input sample;
+* ``state_space``: ``y = C x + D u`` then ``x ← A x + B u (+ E Θ)`` from the stored ``x0``;
+  the terms' histories hold the first input sample and zero outputs before the start;
+* ``arx``: the histories before the start are zero (inputs and outputs);
+* ``sparse_map``: ``y = x[output_states]`` then ``x ← Ξᵀ Θ``; states before the start are
+  ``x0``, inputs the first input sample;
+* once an output is not finite, every later output is NaN (before the output blocks).
+
+Each step splits into :meth:`Stepper.outputs` (the outputs at the current instant for the
+current inputs; no state change) and :meth:`Stepper.advance` (commit the inputs and move one
+sample on), which is what an FMI co-simulation slave with direct feedthrough needs.
+
+Examples
+--------
+>>> import numpy as np
+>>> from tendonkit.schema import Model, Signal, StateSpace
+>>> ss = StateSpace(np.array([[0.5]]), np.array([[1.0]]), np.array([[1.0]]), np.array([[0.0]]))
+>>> s = Stepper(Model("m", 1.0, (Signal("u"),), (Signal("y"),), ss))
+>>> [float(s.step([1.0])[0]) for _ in range(3)]
+[0.0, 1.0, 1.5]
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from tendonkit.errors import DataError
+from tendonkit.schema import ARX, Block, Model, SparseMap, StateSpace
+from tendonkit.terms import CompiledTerms, scalar_evaluator
+
+__all__ = ["Stepper", "feedthrough"]
+
+FloatArray = NDArray[np.float64]
+
+
+class _BlockState:
+    """One block on one signal, evaluated sample by sample (see :func:`simulate.apply_block`)."""
+
+    def __init__(self, block: Block) -> None:
+        self.kind = block.kind
+        self.p = {k: float(v) for k, v in block.params.items()}
+        self.started = False
+        self.fifo: deque[float] = deque()
+        self.v = 0.0  # play / rate_limit: current output; first_order_lag: deviation
+        self.s0 = 0.0  # first_order_lag: first input sample
+
+    def value(self, s: float) -> float:
+        """Block output for input ``s`` at the current sample (no state change)."""
+        kind, p = self.kind, self.p
+        if kind == "dead_zone":
+            z = s - p["center"]
+            return float(np.sign(z) * max(abs(z) - p["threshold"], 0.0) + p["center"])
+        if kind == "saturation":
+            return min(max(s, p["lower"]), p["upper"])
+        if kind == "delay":
+            if int(p["samples"]) == 0 or not self.started:
+                return s
+            return self.fifo[0]
+        if kind == "play":
+            v = self.v if self.started else s
+            w = p["width"]
+            if s - v > w:
+                v = s - w
+            elif s - v < -w:
+                v = s + w
+            return v
+        if kind == "first_order_lag":
+            return s if not self.started else self.v + self.s0
+        # rate_limit
+        v = self.v if self.started else s
+        r = p["rate"]
+        return v + min(max(s - v, -r), r)
+
+    def commit(self, s: float) -> float:
+        """Output for ``s`` and advance one sample."""
+        out = self.value(s)
+        kind, p = self.kind, self.p
+        if kind == "delay":
+            d = int(p["samples"])
+            if d:
+                if not self.started:
+                    self.fifo.extend([s] * d)
+                self.fifo.append(s)
+                self.fifo.popleft()
+        elif kind in ("play", "rate_limit"):
+            self.v = out
+        elif kind == "first_order_lag":
+            a = p["pole"]
+            if not self.started:
+                self.s0, self.v = s, 0.0
+            # The next output of lfilter([0, 1-a], [1, -a], s - s0): z = b1 x - a1 y.
+            self.v = (s - self.s0) * (1.0 - a) - self.v * (-a)
+        self.started = True
+        return out
+
+
+class _Chain:
+    """The blocks of a model on inputs or outputs, grouped by signal, in model order."""
+
+    def __init__(self, blocks: Sequence[Block], names: Sequence[str]) -> None:
+        self.items = [(list(names).index(b.signal), _BlockState(b)) for b in blocks]
+
+    def value(self, x: FloatArray) -> FloatArray:
+        if not self.items:
+            return x
+        out = x.copy()
+        for j, state in self.items:
+            out[j] = state.value(float(out[j]))
+        return out
+
+    def commit(self, x: FloatArray) -> FloatArray:
+        if not self.items:
+            return x
+        out = x.copy()
+        for j, state in self.items:
+            out[j] = state.commit(float(out[j]))
+        return out
+
+
+class Stepper:
+    """Evaluate ``model`` one sample at a time (module docs give the conventions).
+
+    Parameters
+    ----------
+    model : Model
+        Any representation, with any blocks.
+
+    Attributes
+    ----------
+    time_index : int
+        Samples advanced since :meth:`reset`.
+    """
+
+    def __init__(self, model: Model) -> None:
+        self.model = model
+        self.nu, self.ny = len(model.inputs), len(model.outputs)
+        rep = model.representation
+        self._rep = rep
+        if isinstance(rep, StateSpace) and rep.terms:
+            assert rep.E is not None
+            self._ct = CompiledTerms(rep.terms)
+            self._lag = max((t.max_lag for t in rep.terms), default=1)
+        elif isinstance(rep, ARX):
+            from tendonkit.realize import arx_lag_matrices
+            from tendonkit.simulate import arx_max_lag
+
+            self._G = arx_lag_matrices(rep, self.nu) if rep.B else [np.zeros((self.ny, self.nu))]
+            self._lag = arx_max_lag(rep, self.nu)
+            self._acat = np.hstack(rep.A) if rep.A else np.zeros((self.ny, 0))
+            self._off = np.zeros(self.ny) if rep.offset is None else rep.offset
+            coef = rep.term_coefficients
+            self._terms = bool(rep.terms) and coef is not None
+            if self._terms:
+                assert coef is not None
+                self._ct = CompiledTerms(rep.terms)
+                self._eval = scalar_evaluator(self._ct)
+                self._coef_t = coef.T.copy()
+        elif isinstance(rep, SparseMap):
+            self._ct = CompiledTerms(rep.terms)
+            self._lag = max((t.max_lag for t in rep.terms), default=0) + 1
+            self._states = [s.name for s in model.states]
+        self.reset()
+
+    # ------------------------------------------------------------------ state
+    def reset(self) -> None:
+        """Return to the model's initial state (``initial="model"``)."""
+        model, rep = self.model, self._rep
+        self.time_index = 0
+        self._dead = False
+        self._in_blocks = _Chain(model.input_blocks, model.input_names)
+        self._out_blocks = _Chain(model.output_blocks, model.output_names)
+        if isinstance(rep, StateSpace):
+            self._x = np.zeros(rep.n_states) if rep.x0 is None else np.array(rep.x0, dtype=float)
+        elif isinstance(rep, SparseMap):
+            self._x = np.zeros(rep.n_states) if rep.x0 is None else np.array(rep.x0, dtype=float)
+        # Histories, newest last; filled on the first advance (they need the first input).
+        self._u_hist: deque[FloatArray] = deque()
+        self._y_hist: deque[FloatArray] = deque()
+        self._x_hist: deque[FloatArray] = deque()
+        # Where a term's signal lives; later entries win, as in simulate's history dicts
+        # (state space: inputs then outputs; sparse map: states then inputs).
+        self._sources: dict[str, tuple[deque[FloatArray], int]] = {}
+        if isinstance(rep, SparseMap):
+            self._sources.update((n, (self._x_hist, j)) for j, n in enumerate(self._states))
+            self._sources.update((n, (self._u_hist, j)) for j, n in enumerate(model.input_names))
+        else:
+            self._sources.update((n, (self._u_hist, j)) for j, n in enumerate(model.input_names))
+            self._sources.update((n, (self._y_hist, j)) for j, n in enumerate(model.output_names))
+
+    # ------------------------------------------------------------------ public
+    def outputs(self, u: Sequence[float] | FloatArray) -> FloatArray:
+        """Outputs at the current sample for inputs ``u`` (no state change).
+
+        Parameters
+        ----------
+        u : array_like
+            Inputs ``(nu,)`` in the order of ``model.inputs``.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(ny,)`` outputs in the order of ``model.outputs``.
+        """
+        ub = self._in_blocks.value(self._check(u))
+        return self._out_blocks.value(self._raw_output(ub))
+
+    def advance(self, u: Sequence[float] | FloatArray) -> FloatArray:
+        """Commit inputs ``u`` at the current sample, move one sample on, return the outputs.
+
+        The returned outputs are those of the sample just left (what :meth:`outputs` gave).
+        """
+        ub = self._in_blocks.commit(self._check(u))
+        y = self._raw_output(ub)
+        if not self._dead:
+            self._update(ub, y)
+        self.time_index += 1
+        return self._out_blocks.commit(y)
+
+    def step(self, u: Sequence[float] | FloatArray) -> FloatArray:
+        """Outputs at the current sample for inputs ``u``, then advance (see :meth:`advance`)."""
+        return self.advance(u)
+
+    # ------------------------------------------------------------------ internals
+    def _check(self, u: Sequence[float] | FloatArray) -> FloatArray:
+        arr = np.asarray(u, dtype=float).reshape(-1)
+        if arr.shape != (self.nu,):
+            raise DataError(
+                f"Model {self.model.name!r} takes {self.nu} inputs "
+                f"({', '.join(self.model.input_names)}); found {arr.shape[0]}."
+            )
+        if not np.all(np.isfinite(arr)):
+            raise DataError(f"Inputs must be finite; found {arr.tolist()}.")
+        return arr
+
+    def _raw_output(self, ub: FloatArray) -> FloatArray:
+        """Modelled outputs before the output blocks (NaN once diverged)."""
+        if self._dead:
+            return np.full(self.ny, np.nan)
+        rep = self._rep
+        if isinstance(rep, StateSpace):
+            y = rep.C @ self._x + rep.D @ ub
+        elif isinstance(rep, SparseMap):
+            y = self._x[list(rep.output_states)].copy()
+        else:
+            y = self._arx_output(rep, ub)
+        if not np.all(np.isfinite(y)):
+            self._dead = True
+            return np.full(self.ny, np.nan)
+        return np.asarray(y, dtype=float)
+
+    def _histories(self, ub: FloatArray) -> None:
+        """Before the first sample: pad the histories as :func:`simulate` does."""
+        if self.time_index or self._u_hist:
+            return
+        rep, lag = self._rep, getattr(self, "_lag", 0)
+        if isinstance(rep, ARX):
+            pad_u, pad_y = np.zeros(self.nu), np.zeros(self.ny)
+        else:
+            pad_u, pad_y = ub.copy(), np.zeros(self.ny)
+        for _ in range(lag):
+            self._u_hist.append(pad_u)
+            self._y_hist.append(pad_y)
+            if isinstance(rep, SparseMap):
+                self._x_hist.append(self._x.copy())
+
+    def _arx_output(self, rep: ARX, ub: FloatArray) -> FloatArray:
+        self._histories(ub)
+        u_h, y_h = self._u_hist, self._y_hist
+        acc = np.zeros(self.ny) + self._off
+        for lag, g in enumerate(self._G):
+            if np.any(g):
+                acc = acc + g @ (ub if lag == 0 else u_h[-lag])
+        if rep.na:
+            past = np.concatenate([y_h[-i] for i in range(1, rep.na + 1)])
+            acc = acc - self._acat @ past
+        if self._terms:
+            names_u, names_y = self.model.input_names, self.model.output_names
+            reads = []
+            for name, lag in self._ct.keys:
+                if name in names_u:
+                    src = ub if lag == 0 else u_h[-lag]
+                    reads.append(float(src[names_u.index(name)]))
+                else:
+                    reads.append(float(y_h[-lag][names_y.index(name)]))
+            try:
+                theta = self._eval(reads)
+            except (OverflowError, ValueError):
+                return np.full(self.ny, np.nan)
+            acc = acc + self._coef_t @ theta
+        return np.asarray(acc, dtype=float)
+
+    def _update(self, ub: FloatArray, y: FloatArray) -> None:
+        """Advance the representation's state with inputs ``ub`` and outputs ``y``."""
+        rep = self._rep
+        if isinstance(rep, StateSpace) and not rep.terms:
+            self._x = rep.A @ self._x + rep.B @ ub  # divergence shows in the outputs
+            return
+        if isinstance(rep, StateSpace):
+            assert rep.E is not None
+            self._histories(ub)
+            self._u_hist.append(ub)
+            self._y_hist.append(y)
+            vals = np.array([self._key(name, lag) for name, lag in self._ct.keys])
+            self._x = rep.A @ self._x + rep.B @ ub + rep.E @ self._ct.evaluate(vals)
+            self._trim()
+        elif isinstance(rep, ARX):
+            self._histories(ub)
+            self._u_hist.append(ub)
+            self._y_hist.append(y)
+            self._trim()
+            return
+        else:
+            self._histories(ub)
+            self._u_hist.append(ub)
+            self._x_hist.append(self._x.copy())
+            vals = np.array([self._key(name, lag) for name, lag in self._ct.keys])
+            self._x = self._ct.evaluate(vals) @ rep.coefficients
+            self._trim()
+        if not np.all(np.isfinite(self._x)):
+            self._dead = True
+
+    def _key(self, name: str, lag: int) -> float:
+        """Signal ``name`` ``lag`` samples back; the newest history entry is the current one."""
+        source, j = self._sources[name]
+        return float(source[-1 - lag][j])
+
+    def _trim(self) -> None:
+        keep = getattr(self, "_lag", 0) + 1
+        for hist in (self._u_hist, self._y_hist, self._x_hist):
+            while len(hist) > keep:
+                hist.popleft()
+
+
+def _chain_passes(blocks: Sequence[Block], signal: str, initial: bool) -> bool:
+    """Whether the current value of ``signal`` reaches the end of its block chain."""
+    for b in blocks:
+        if b.signal != signal:
+            continue
+        if b.kind == "first_order_lag" and not initial:
+            return False
+        if b.kind == "delay" and int(b.params["samples"]) > 0 and not initial:
+            return False
+    return True
+
+
+def feedthrough(model: Model, initial: bool = False) -> dict[str, list[str]]:
+    """Which inputs each output depends on directly, at the same sample.
+
+    Parameters
+    ----------
+    model : Model
+    initial : bool
+        At the first sample instead of later ones: a ``delay`` (padded with the first input)
+        and a ``first_order_lag`` (starting at it) pass the current input only there.
+
+    Returns
+    -------
+    dict
+        Output name -> input names (structural: a non-zero coefficient or a block path).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from tendonkit.schema import Model, Signal, StateSpace
+    >>> ss = StateSpace(np.eye(1), np.eye(1), np.eye(1), np.array([[2.0]]))
+    >>> feedthrough(Model("m", 1.0, (Signal("u"),), (Signal("y"),), ss))
+    {'y': ['u']}
+    """
+    rep = model.representation
+    nu, ny = len(model.inputs), len(model.outputs)
+    direct = np.zeros((ny, nu), dtype=bool)
+    if isinstance(rep, StateSpace):
+        direct |= rep.D != 0
+    elif isinstance(rep, ARX):
+        from tendonkit.realize import arx_lag_matrices
+
+        if rep.B:
+            direct |= arx_lag_matrices(rep, nu)[0] != 0
+        coef = rep.term_coefficients
+        if rep.terms and coef is not None:
+            for i, term in enumerate(rep.terms):
+                for f in term.factors:
+                    if f.signal in model.input_names and f.lag == 0:
+                        direct[:, model.input_names.index(f.signal)] |= coef[i] != 0
+    out: dict[str, list[str]] = {}
+    for j, y_name in enumerate(model.output_names):
+        passes_out = _chain_passes(model.output_blocks, y_name, initial)
+        out[y_name] = [
+            u_name
+            for m, u_name in enumerate(model.input_names)
+            if direct[j, m] and passes_out and _chain_passes(model.input_blocks, u_name, initial)
+        ]
+    return out

@@ -196,7 +196,12 @@ class SINDYc:
         )
         notes = self._notes(lam, sweep, int(keep.sum()), len(terms))
         states = signals(dataset.outputs, dataset.units)
-        return build_model(self, dataset, rep, states=states, notes=notes)
+        # a diverging candidate scored -inf: stored as null (model files hold finite numbers)
+        details = {
+            "threshold": lam,
+            "sweep": [[float(a), float(b) if np.isfinite(b) else None] for a, b in sweep],
+        }
+        return build_model(self, dataset, rep, states=states, notes=notes, details=details)
 
     # -- steps ---------------------------------------------------------------------------------
     def _split(self, dataset: Dataset) -> tuple[Dataset, Dataset]:

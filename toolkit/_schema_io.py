@@ -244,6 +244,10 @@ def _provenance(raw: Any, p: list[str]) -> Provenance:
     if not isinstance(opts, dict):
         p.append("provenance.options: expected an object.")
         opts = {}
+    details = raw.get("details", {})
+    if not isinstance(details, dict):
+        p.append("provenance.details: expected an object.")
+        details = {}
     texts = {}
     for key in ("identifier", "version", "dataset_hash", "notes"):
         val = raw.get(key, "")
@@ -251,4 +255,6 @@ def _provenance(raw: Any, p: list[str]) -> Provenance:
             p.append(f"provenance.{key}: expected text, found {val!r}.")
             val = ""
         texts[key] = val
-    return Provenance(options=opts, training_fit={k: float(v) for k, v in fit.items()}, **texts)
+    return Provenance(
+        options=opts, training_fit={k: float(v) for k, v in fit.items()}, details=details, **texts
+    )

@@ -133,7 +133,6 @@ def identifier_arguments(
     return inputs, outputs, options, factory
 
 
-
 def cmd_identify(args: argparse.Namespace) -> int:
     """Identify a model from CSV data with a registered method."""
     from tendonkit.dataset import Dataset
@@ -382,9 +381,14 @@ def cmd_plugins(args: argparse.Namespace) -> int:
 
 def cmd_demo(args: argparse.Namespace) -> int:
     """Run the main job and write its report."""
-    from tendonkit.demo import run_identification_demo
+    from tendonkit.demo import run_demo
 
-    run_identification_demo(Path(args.out), quick=args.quick)
+    out = Path(args.out)
+    problems: list[str] = []
+    if out.exists() and not out.is_dir():
+        problems.append(f"--out {str(out)!r} exists and is not a folder.")
+    raise_problems(problems, "tendonkit demo cannot run:")
+    run_demo(out, quick=args.quick, seed=args.seed)
     return 0
 
 
@@ -471,7 +475,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("demo", help="run the main job end to end and write a report")
     p.add_argument("--out", default="demo-report", help="output folder (default: demo-report)")
-    p.add_argument("--quick", action="store_true", help="smaller data, finishes quickly")
+    p.add_argument("--quick", action="store_true", help="smaller data, finishes in about a minute")
+    p.add_argument("--seed", type=int, default=0, help="seed of every random choice (default 0)")
     p.set_defaults(func=cmd_demo)
 
     import importlib

@@ -65,6 +65,7 @@ def build_model(
     states: tuple[Signal, ...] = (),
     notes: str = "",
     name: str | None = None,
+    details: dict[str, Any] | None = None,
 ) -> Model:
     """Wrap a representation into a :class:`Model` with provenance and its training fit.
 
@@ -84,6 +85,7 @@ def build_model(
             options=options_dict(options),
             dataset_hash=dataset.hash(),
             notes=notes,
+            details=dict(details or {}),
         ),
     )
     if _SKIP_TRAINING_FIT.get():

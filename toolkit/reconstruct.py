@@ -189,11 +189,18 @@ def joint_report(
     if plot_dir is not None:
         from tendonkit.figures_model import plot_ee_path, plot_joints
 
-        t = np.concatenate([e.t for e in data.experiments])
+        # experiments back to back: time runs on, and path lines break between experiments
+        t = data.dt * np.arange(sum(e.n_samples for e in data.experiments))
+        cuts = np.cumsum([e.n_samples for e in data.experiments])[:-1]
         files = []
         if q_meas is not None:
             files.append(str(plot_joints(Path(plot_dir), name, t, q_meas, q_model)))
         if ee_meas is not None:
-            files.append(str(plot_ee_path(Path(plot_dir), name, ee_meas, ee_model)))
+            gap = np.full((1, 3), np.nan)
+            meas_parts = np.split(ee_meas, cuts)
+            model_parts = np.split(ee_model, cuts)
+            ee_m = np.vstack([np.vstack([p, gap]) for p in meas_parts])
+            ee_s = np.vstack([np.vstack([p, gap]) for p in model_parts])
+            files.append(str(plot_ee_path(Path(plot_dir), name, ee_m, ee_s)))
         out["figures"] = files
     return out

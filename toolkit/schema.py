@@ -156,7 +156,11 @@ Representation = StateSpace | ARX | SparseMap
 
 @dataclass(frozen=True)
 class Provenance:
-    """Where a model came from: identifier, its version and options, data hash, training fit."""
+    """Where a model came from: identifier, its version and options, data hash, training fit.
+
+    ``details`` holds machine-readable results of the identification that are not options
+    (plain JSON data: e.g. the threshold a sweep chose, the singular values behind an order).
+    """
 
     identifier: str = ""
     version: str = ""
@@ -164,6 +168,7 @@ class Provenance:
     dataset_hash: str = ""
     training_fit: dict[str, float] = field(default_factory=dict)
     notes: str = ""
+    details: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass(frozen=True, eq=False)
@@ -281,6 +286,7 @@ class Model:
                 "dataset_hash": self.provenance.dataset_hash,
                 "training_fit": self.provenance.training_fit,
                 "notes": self.provenance.notes,
+                "details": self.provenance.details,
             },
         }
 

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from tendonkit.cli import atomic_write, check_output_path, raise_problems, write_json
-from tendonkit.errors import OptionError, SchemaError
+from tendonkit.errors import DataError, OptionError, SchemaError
 
 PROTOCOLS = ("circles", "random", "petal")
 
@@ -69,8 +69,8 @@ def add_commands(sub: Any) -> None:
     p.add_argument("-o", "--output", required=True, help="FMU file to write")
     p.add_argument(
         "--ratios",
-        help="JSON file with the joint ratios ratio_3, ratio_4, ratio_5, ratio_6 "
-        "(q3/q1, q4/q2, q5/q1, q6/q2; default: the paper's)",
+        help="JSON file with the joint ratios {q3, q4, q5, q6} (q3/q1, q4/q2, q5/q1, q6/q2; "
+        "the format compare --joints reports estimates in; default: the paper's)",
     )
     p.add_argument(
         "--no-kinematics",
@@ -244,31 +244,21 @@ def cmd_collect(args: argparse.Namespace) -> int:
 
 # ------------------------------------------------------------------------------- export
 def _read_ratios(path: str, problems: list[str]) -> tuple[float, ...] | None:
-    names = ("ratio_3", "ratio_4", "ratio_5", "ratio_6")
+    """The four ratios (r3, r4, r5, r6) of a ratios file in the format of
+    :class:`tendonkit.reconstruct.Ratios` (keys q3, q4, q5, q6 — what ``compare --joints``
+    reports as estimates)."""
+    from tendonkit.reconstruct import Ratios
+
     try:
-        data = json.loads(Path(path).read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        problems.append(f"--ratios file {path!r} does not exist.")
+        r = Ratios.load(path)
+    except DataError as exc:
+        problems.extend(f"--ratios: {p}" for p in (exc.problems or [str(exc)]))
         return None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        problems.append(f"--ratios file {path!r} is not readable JSON: {exc}")
+    bad = [f"{k}={v!r}" for k, v in r.to_dict().items() if not 0 < v <= 1]
+    if bad:
+        problems.append(f"--ratios: ratios must be in (0, 1], found {', '.join(bad)}.")
         return None
-    if not isinstance(data, dict):
-        problems.append(f"--ratios file {path!r} must hold an object with {', '.join(names)}.")
-        return None
-    unknown = sorted(set(data) - set(names))
-    if unknown:
-        problems.append(f"--ratios: unknown keys {unknown}; expected {', '.join(names)}.")
-    values = []
-    for name in names:
-        value = data.get(name)
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            problems.append(f"--ratios: {name} must be a number, found {value!r}.")
-            continue
-        if not (np.isfinite(value) and 0 < value <= 1):
-            problems.append(f"--ratios: {name} must be in (0, 1], found {value!r}.")
-        values.append(float(value))
-    return tuple(values) if len(values) == 4 else None
+    return (r.r3, r.r4, r.r5, r.r6)
 
 
 def cmd_export(args: argparse.Namespace) -> int:

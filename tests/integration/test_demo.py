@@ -1,0 +1,60 @@
+"""`tendonkit demo --quick` end to end: files produced, tables parse and agree with the report."""
+
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+
+import pytest
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory):
+    out = tmp_path_factory.mktemp("demo")
+    r = subprocess.run(
+        [sys.executable, "-m", "tendonkit.cli", "demo", "--quick", "--out", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert r.returncode == 0, r.stderr[-3000:]
+    return out, r.stdout
+
+
+def test_files_are_produced(demo):
+    out, _ = demo
+    for name in ("index.html", "summary.json", "model.fmu", "plant_paper_like.fmu", "n4sid.json",
+                 "arx.json", "sindyc.json", "diagnose/index.html", "diagnose/extended_model.json"):
+        assert (out / name).exists(), name
+    pngs = list((out / "figures").glob("*.png"))
+    assert len(pngs) >= 8  # Fig. 2 (2), Fig. 3 and 4 per method (6)
+    html = (out / "index.html").read_text()
+    for png in pngs:
+        assert png.name in html or "mpc" in png.name
+
+
+def test_printed_table_parses_and_agrees_with_summary_and_report(demo):
+    out, stdout = demo
+    summary = json.loads((out / "summary.json").read_text())
+    rows = {r["model"]: r for r in summary["table_1"]["models"]}
+    html = (out / "index.html").read_text()
+    for method, paper in (("n4sid", 39.12), ("arx", 44.90), ("sindyc", 67.74)):
+        m = re.search(rf"^{method}\s+([-\d.]+)\s+([-\d.]+)\s+([-\d.]+)\s+([-\d.]+)$", stdout, re.M)
+        assert m, f"no Table I row for {method} in the printed output"
+        q1, q2, mean, printed_paper = map(float, m.groups())
+        assert printed_paper == paper
+        assert q1 == pytest.approx(rows[method]["fit"]["q1"], abs=0.006)
+        assert mean == pytest.approx(rows[method]["mean_fit"], abs=0.006)
+        assert f"<td>{mean:.2f}</td>" in html  # the report shows the same number
+    assert summary["export"]["problems"] == []
+    assert summary["export"]["max_difference"] < 1e-9
+    for name, res in summary["mpc"]["results"].items():
+        assert res["input_bound_violations"] == 0, name
+    assert summary["diagnosis"]["cause"] in {
+        "coulomb_friction", "backlash", "hysteresis", "input_delay", "dead_zone", "saturation",
+        "actuator_lag", "nonlinear_stiffness", "gravity", "none",
+    }

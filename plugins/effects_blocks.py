@@ -7,30 +7,29 @@ them, and the block is attached to the model — so these extensions work for ev
 - ``dead_zone``: inputs below a threshold have no effect (tendon slack, motor dead band);
 - ``saturation``: a clipped output (overflow, sensor range) or clipped inputs;
 - ``actuator_lag``: a first-order lag, optionally rate-limited, between command and plant;
-- ``backlash``: play of a given width on the outputs (joint play) or on the inputs (gears).
+- ``backlash``: play of a given width on the outputs (joint play between the driven and the
+  measured part).
 """
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
 
-from tendonkit.augment import drop_samples, transform_inputs, transform_outputs
+from tendonkit.augment import drop_samples, refit_with_input_blocks
 from tendonkit.dataset import Dataset, Experiment
 from tendonkit.diagnose import Context, Extension
 from tendonkit.hookspecs import hookimpl
 from tendonkit.residuals import ResidualAnalysis
-from tendonkit.schema import Block, Model
+from tendonkit.schema import ARX, Block, Model
+from tendonkit.terms import Factor, Term
 
 
 def _with_input_blocks(ctx: Context, blocks: Sequence[Block]) -> Callable[[Dataset], Model]:
-    def build(data: Dataset) -> Model:
-        model = ctx.refit(transform_inputs(data, blocks))
-        return model.replace(input_blocks=(*blocks, *model.input_blocks))
-
-    return build
+    return refit_with_input_blocks(ctx.refit, blocks)
 
 
 def _select_and_finish(
@@ -90,18 +89,29 @@ class DeadZone:
     cause = "dead_zone"
     description = "Dead zone: the part of every input within a threshold of zero has no effect."
 
+    #: Shares of the samples that fall inside the dead zone, per input.
+    quantiles = (0.005, 0.01, 0.02, 0.05, 0.1, 0.2)
+
     def extend(self, ctx: Context) -> Extension | None:
-        """Thresholds at quantiles of |u| over all inputs."""
+        """Per-input thresholds at low quantiles of ``|u|``: the kink is placed where data are.
+
+        The zone is centred on the physical zero of each input.  For a signal of one sign (a
+        tension, a pump voltage) it is one-sided: ``max(u - threshold, 0)``, slack below the
+        threshold.  A threshold is only useful where some samples fall inside it, so the
+        candidates put 0.5–20 % of each input's samples in the zone.
+        """
         u = np.abs(ctx.train.u)
         cands = []
-        for q in (0.02, 0.05, 0.1, 0.2, 0.3):
-            th = float(np.quantile(u, q))
-            if th <= 0:
-                continue
+        for q in self.quantiles:
+            th = np.quantile(u, q, axis=0)
             blocks = [
-                Block("dead_zone", n, {"threshold": th, "center": 0.0}) for n in ctx.train.inputs
+                Block("dead_zone", n, {"threshold": float(th[m]), "center": 0.0})
+                for m, n in enumerate(ctx.train.inputs)
+                if th[m] > 0
             ]
-            cands.append(({"threshold": th, "quantile": q}, _with_input_blocks(ctx, blocks)))
+            if blocks:
+                params = {"quantile": q, "threshold": [float(t) for t in th]}
+                cands.append((params, _with_input_blocks(ctx, blocks)))
         return _select_and_finish(ctx, self, cands)
 
     def signature(
@@ -156,34 +166,38 @@ class Saturation:
     def _output_candidates(
         self, ctx: Context
     ) -> list[tuple[dict[str, Any], Callable[[Dataset], Model]]]:
+        """Outputs clipped where the training data pile up at a level (a plateau).
+
+        Without a plateau there is no clipped output to model.  The clip is placed after the
+        model (a sensor range) or in its recursion (an overflowing store, ARX only); the
+        dynamics are either the baseline's (identified on all samples) or identified again on
+        the unclipped samples.
+        """
         cands = []
         y = ctx.train.y
         lag = 10
         for j, name in enumerate(ctx.train.outputs):
             lower, upper = _plateau(y[:, j])
-            levels = []
-            if lower is not None or upper is not None:
-                levels.append((lower, upper, "plateau"))
-            for q in (0.99, 0.97):
-                levels.append((None, float(np.quantile(y[:, j], q)), f"quantile {q}"))
-            for lo, hi, how in levels:
-                lo_v = -np.inf if lo is None else lo
-                hi_v = np.inf if hi is None else hi
-                params = {
-                    "where": "output",
-                    "signal": name,
-                    "lower": lo,
-                    "upper": hi,
-                    "level_from": how,
-                }
-                cands.append((params, self._clipped_output(ctx, j, name, lo_v, hi_v, lag)))
+            if lower is None and upper is None:
+                continue
+            lo_v = -np.inf if lower is None else lower
+            hi_v = np.inf if upper is None else upper
+            base = {"where": "output", "signal": name, "lower": lower, "upper": upper}
+            loops = [False, True] if isinstance(ctx.baseline.representation, ARX) else [False]
+            for refit in (False, True):
+                for in_loop in loops:
+                    params = {**base, "in_loop": in_loop, "refit_unclipped": refit}
+                    build = self._clipped_output(ctx, j, name, lo_v, hi_v, lag, refit)
+                    if in_loop:
+                        build = self._in_loop(build, j, name, lo_v, hi_v)
+                    cands.append((params, build))
         return cands
 
     @staticmethod
     def _clipped_output(
-        ctx: Context, j: int, name: str, lo_v: float, hi_v: float, lag: int
+        ctx: Context, j: int, name: str, lo_v: float, hi_v: float, lag: int, refit: bool
     ) -> Callable[[Dataset], Model]:
-        """Identify on the unclipped samples, then clip the model's output at the levels."""
+        """The baseline, or the baseline identified on the unclipped samples, then a clip."""
 
         def build(data: Dataset) -> Model:
             tol = 1e-6 * (float(np.ptp(data.y[:, j])) or 1.0)
@@ -191,19 +205,68 @@ class Saturation:
             def clipped(e: Experiment) -> np.ndarray:
                 return (e.y[:, j] >= hi_v - tol) | (e.y[:, j] <= lo_v + tol)
 
-            model = ctx.refit(drop_samples(data, clipped, min_length=lag + 5))
+            model = (
+                ctx.refit(drop_samples(data, clipped, min_length=lag + 5))
+                if refit
+                else ctx.baseline
+            )
             big = 1e300
             block = Block("saturation", name, {"lower": max(lo_v, -big), "upper": min(hi_v, big)})
             return model.replace(output_blocks=(*model.output_blocks, block))
 
         return build
 
+    @staticmethod
+    def _in_loop(
+        wiener: Callable[[Dataset], Model], j: int, name: str, lo_v: float, hi_v: float
+    ) -> Callable[[Dataset], Model]:
+        """A clipped *state*: the recursion continues from the clipped level (an overflow).
+
+        A tank that overflows stays full while the inflow exceeds the outflow and starts to
+        empty as soon as it does not; a clip after the model (Wiener) would instead hold the
+        output until the unclipped response came back down.  For an ARX model,
+        ``Σ A_i clip(y[k-i])`` is ``Σ A_i y[k-i]`` plus relu terms of the past outputs whose
+        coefficients are tied to the ``A_i``: the model is identified on the unclipped
+        samples (or kept) and the terms are added with those coefficients (nothing new is
+        estimated).
+        """
+
+        def build(data: Dataset) -> Model:
+            model = wiener(data)
+            rep = model.representation
+            if not isinstance(rep, ARX):  # pragma: no cover - guarded by the caller
+                return model
+            terms, coefs = [], []
+            for i, Ai in enumerate(rep.A, start=1):
+                if np.isfinite(hi_v):
+                    terms.append(Term((Factor(name, fn="relu", lag=i, param=hi_v),)))
+                    coefs.append(Ai[:, j])
+                if np.isfinite(lo_v):
+                    terms.append(Term((Factor(name, fn="relu", lag=i, scale=-1.0, param=-lo_v),)))
+                    coefs.append(-Ai[:, j])
+            if not terms:
+                return model
+            old = (
+                rep.term_coefficients
+                if rep.term_coefficients is not None
+                else np.zeros((0, len(model.outputs)))
+            )
+            new = dataclasses.replace(
+                rep,
+                terms=(*rep.terms, *terms),
+                term_coefficients=np.vstack([old, np.array(coefs)]),
+            )
+            return model.replace(representation=new)
+
+        return build
+
     def _input_candidates(
         self, ctx: Context
     ) -> list[tuple[dict[str, Any], Callable[[Dataset], Model]]]:
+        """Inputs clipped to a range at low and high quantiles."""
         cands = []
         u = ctx.train.u
-        for q in (0.01, 0.025):
+        for q in (0.01, 0.025, 0.05):
             lo = np.quantile(u, q, axis=0)
             hi = np.quantile(u, 1 - q, axis=0)
             blocks = [
@@ -216,7 +279,7 @@ class Saturation:
         return cands
 
     def extend(self, ctx: Context) -> Extension | None:
-        """Output clipping (plateaus or high quantiles) and input clipping candidates."""
+        """Output clipping (at plateaus of the data) and input clipping candidates."""
         return _select_and_finish(
             ctx, self, self._output_candidates(ctx) + self._input_candidates(ctx)
         )
@@ -253,32 +316,52 @@ class ActuatorLag:
         "rate-limited, before it acts on the system."
     )
 
+    #: Time constants tried, in samples.
+    taus = (0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0)
+    #: Rate limits tried, as quantiles of each input's |change per sample|.
+    rate_quantiles = (0.05, 0.2, 0.5, 0.8)
+
     def extend(self, ctx: Context) -> Extension | None:
-        """Time constants of 0.5..8 samples, with and without rate limits at |Δu| quantiles."""
+        """First-order lags, then rate limits alone and combined with the best lag.
+
+        Two stages keep the search small: the time constant is chosen first (training
+        simulation fit), then rate limits at quantiles of ``|Δu|`` are tried alone and after
+        that lag.
+        """
         dt = ctx.train.dt
         du = np.abs(np.diff(ctx.train.u, axis=0))
-        cands = []
-        for tau in (0.5, 1.0, 2.0, 3.0, 5.0, 8.0):
+        lags = []
+        for tau in self.taus:
             pole = float(np.exp(-1.0 / tau))
             blocks = [Block("first_order_lag", n, {"pole": pole}) for n in ctx.train.inputs]
-            cands.append(({"tau_s": tau * dt, "pole": pole}, _with_input_blocks(ctx, blocks)))
-            if tau in (1.0, 3.0, 5.0):
-                for q in (0.5, 0.8):
-                    rate = np.quantile(du, q, axis=0)
-                    rblocks = [
-                        Block("rate_limit", n, {"rate": float(rate[m])})
-                        for m, n in enumerate(ctx.train.inputs)
-                        if rate[m] > 0
-                    ]
-                    if rblocks:
-                        params = {
-                            "tau_s": tau * dt,
-                            "pole": pole,
-                            "rate_quantile": q,
-                            "rate_per_s": [float(r / dt) for r in rate],
-                        }
-                        cands.append((params, _with_input_blocks(ctx, [*rblocks, *blocks])))
-        return _select_and_finish(ctx, self, cands)
+            lags.append(({"tau_s": tau * dt, "pole": pole}, blocks))
+        p1, _, _, _ = ctx.select((p, _with_input_blocks(ctx, b)) for p, b in lags)
+        best_lag = next((b for p, b in lags if p == p1), [])
+        cands = []
+        if best_lag:
+            cands.append((p1, _with_input_blocks(ctx, best_lag)))
+        for q in self.rate_quantiles:
+            rate = np.quantile(du, q, axis=0)
+            rblocks = [
+                Block("rate_limit", n, {"rate": float(rate[m])})
+                for m, n in enumerate(ctx.train.inputs)
+                if rate[m] > 0
+            ]
+            if not rblocks:
+                continue
+            rp = {"rate_quantile": q, "rate_per_s": [float(r / dt) for r in rate]}
+            cands.append(({**rp, "tau_s": 0.0}, _with_input_blocks(ctx, rblocks)))
+            if best_lag:
+                cands.append(({**rp, **p1}, _with_input_blocks(ctx, [*rblocks, *best_lag])))
+        params, model, score, _ = ctx.select(cands)
+        if model is None:
+            return None
+        return Extension(
+            model=model,
+            params=params,
+            description=self.description,
+            train_gain=score - ctx.baseline_score,
+        )
 
     def signature(
         self, ctx: Context, baseline: Model, valid: Dataset, res: ResidualAnalysis
@@ -289,6 +372,43 @@ class ActuatorLag:
             "value": _concentration(res, "after input changes"),
             "signal": "input rate of change",
         }
+
+
+def _fit_output_play(ctx: Context, data: Dataset, widths: np.ndarray, refinements: int) -> Model:
+    """Identify a model whose outputs pass a play of half-widths ``widths``.
+
+    The driven signal is ``x = y + w·c`` with ``c`` in [-1, 1] the side of the gap in
+    contact.  The measured ``y`` is noisy and a play narrower than the noise would flip its
+    direction at random, so ``c`` is read from noise-free simulations instead: first from the
+    direction of the baseline's free-run simulation, then ``refinements`` times from the
+    current model's own simulation, ``c = (x̂ - play(x̂)) / w`` (which also ramps through the
+    gap instead of jumping).  Each pass re-runs the baseline identifier on ``x``.
+    """
+    from tendonkit.simulate import _aligned, play_operator, simulate_dataset
+
+    data = _aligned(ctx.baseline, data)
+    model = ctx.baseline
+    safe = np.where(widths > 0, widths, 1.0)
+    for it in range(refinements + 1):
+        inner_model = model.replace(output_blocks=())
+        sims = simulate_dataset(inner_model, data)
+        exps = []
+        for e, sim in zip(data.experiments, sims, strict=True):
+            sim = np.where(np.isfinite(sim), sim, e.y)
+            x = e.y.copy()
+            for j in range(e.y.shape[1]):
+                if it == 0:
+                    c = _direction(sim[:, j], widths[j])
+                else:
+                    c = (sim[:, j] - play_operator(sim[:, j], widths[j])) / safe[j]
+                x[:, j] = e.y[:, j] + widths[j] * c
+            exps.append(dataclasses.replace(e, y=x))
+        fitted = ctx.refit(data.with_experiments(exps))
+        blocks = tuple(
+            Block("play", n, {"width": float(widths[j])}) for j, n in enumerate(data.outputs)
+        )
+        model = fitted.replace(output_blocks=(*fitted.output_blocks, *blocks))
+    return model
 
 
 def _direction(y: np.ndarray, width: float) -> np.ndarray:
@@ -308,56 +428,43 @@ def _direction(y: np.ndarray, width: float) -> np.ndarray:
 
 
 class Backlash:
-    """Play: the output (or input) moves only after the motion has crossed a gap."""
+    """Play: the measured output moves only after the driving motion has crossed a gap."""
 
     name = "backlash"
     cause = "backlash"
     description = (
         "Backlash: a play operator of half-width w on every output (joint play between the "
-        "driven and the measured part) or on every input (gear play)."
+        "driven and the measured part)."
     )
 
+    #: Half-widths tried, as fractions of each output's standard deviation.
+    fractions = (0.01, 0.02, 0.04, 0.08, 0.16)
+    #: Refinements of the reconstructed driven signal (see :func:`_fit_output_play`).
+    refinements = 2
+
     def extend(self, ctx: Context) -> Extension | None:
-        """Play widths as fractions of each signal's standard deviation."""
+        """Play on every output, half-widths as fractions of each output's spread.
+
+        The measured output is the play's output; the play's input (the driven part) is
+        reconstructed, the baseline identifier is run on it and a ``play`` block is attached
+        to the outputs (:func:`_fit_output_play`).  Play on *inputs* (a force dead band that
+        reverses with the direction) is quasi-static Coulomb friction in a force
+        transmission and belongs to ``coulomb_friction``.
+        """
         cands: list[tuple[dict[str, Any], Callable[[Dataset], Model]]] = []
         ystd = ctx.train.y.std(axis=0)
-        for frac in (0.01, 0.02, 0.04, 0.08):
+        for frac in self.fractions:
             widths = frac * ystd
 
             def build(data: Dataset, widths: np.ndarray = widths) -> Model:
-                def unplay(y: np.ndarray) -> np.ndarray:
-                    out = y.copy()
-                    for j in range(y.shape[1]):
-                        out[:, j] = y[:, j] + widths[j] * _direction(y[:, j], widths[j])
-                    return out
+                return _fit_output_play(ctx, data, widths, self.refinements)
 
-                model = ctx.refit(transform_outputs(data, unplay))
-                blocks = tuple(
-                    Block("play", n, {"width": float(widths[j])})
-                    for j, n in enumerate(data.outputs)
-                )
-                return model.replace(output_blocks=(*model.output_blocks, *blocks))
-
-            cands.append(
-                (
-                    {
-                        "where": "outputs",
-                        "width": [float(w) for w in widths],
-                        "fraction_of_std": frac,
-                    },
-                    build,
-                )
-            )
-        ustd = ctx.train.u.std(axis=0)
-        for frac in (0.01, 0.03):
-            blocks = [
-                Block("play", n, {"width": float(frac * ustd[m])})
-                for m, n in enumerate(ctx.train.inputs)
-                if ustd[m] > 0
-            ]
-            cands.append(
-                ({"where": "inputs", "fraction_of_std": frac}, _with_input_blocks(ctx, blocks))
-            )
+            params = {
+                "where": "outputs",
+                "width": [float(w) for w in widths],
+                "fraction_of_std": frac,
+            }
+            cands.append((params, build))
         return _select_and_finish(ctx, self, cands)
 
     def signature(

@@ -1,12 +1,14 @@
 """Built-in effects that extend a model with nonlinear terms of its past outputs.
 
-- ``coulomb_friction``: ``tanh(Δ_m y[k-1] / ε)`` per output — a smoothed sign of the velocity;
-- ``nonlinear_stiffness``: odd powers ``y[k-1]^3`` (and ``^5``) per output;
+- ``coulomb_friction``: ``tanh(Δ_m y[k-1] / ε)`` per output — a smoothed sign of the velocity
+  (with ``tanh²`` for asymmetric friction) — or a play on every input (friction in a force
+  transmission is a dead band in force space that follows the direction of motion);
+- ``nonlinear_stiffness``: odd powers ``y[k-1]^3`` (and ``^5``), or ``tanh(y[k-1]/s)``, per output;
 - ``gravity``: a constant (operating-point load) and ``cos(y[k-1])`` for angle outputs.
 
-Each effect proposes a few structures and scales, chooses one on the inner split of the
-training data (:meth:`tendonkit.diagnose.Context.select`) and refits on all training data with
-:func:`tendonkit.augment.extend_with_terms`, which works for every representation.
+Each effect proposes a few structures and scales, fits each on the training data with
+:func:`tendonkit.augment.extend_with_terms` (which works for every representation) and keeps
+the one with the best training simulation fit (:meth:`tendonkit.diagnose.Context.select`).
 """
 
 from __future__ import annotations
@@ -16,12 +18,12 @@ from typing import Any
 
 import numpy as np
 
-from tendonkit.augment import extend_with_terms
+from tendonkit.augment import extend_with_terms, refit_with_input_blocks
 from tendonkit.dataset import Dataset
 from tendonkit.diagnose import Context, Extension
 from tendonkit.hookspecs import hookimpl
 from tendonkit.residuals import ResidualAnalysis
-from tendonkit.schema import Model
+from tendonkit.schema import Block, Model
 from tendonkit.terms import Factor, Term
 
 
@@ -48,22 +50,28 @@ class _TermEffect:
     def candidates(self, ctx: Context) -> list[tuple[dict[str, Any], list[Term]]]:
         raise NotImplementedError
 
-    def extend(self, ctx: Context) -> Extension | None:
-        """Choose the best term set on the inner split and refit on all training data."""
-        cands = self.candidates(ctx)
-        if not cands:
-            return None
+    def builders(self, ctx: Context) -> list[tuple[dict[str, Any], Callable[[Dataset], Model]]]:
+        """Every candidate as ``(params, build(train) -> Model)``."""
 
         def builder(terms: list[Term]) -> Callable[[Dataset], Model]:
             return lambda d: extend_with_terms(ctx.baseline, d, terms, refit=ctx.refit)
 
-        params, model, score, _ = ctx.select((p, builder(t)) for p, t in cands)
+        return [
+            ({**p, "terms": [t.label for t in terms]}, builder(terms))
+            for p, terms in self.candidates(ctx)
+        ]
+
+    def extend(self, ctx: Context) -> Extension | None:
+        """Choose the candidate with the best training simulation fit."""
+        cands = self.builders(ctx)
+        if not cands:
+            return None
+        params, model, score, _ = ctx.select(cands)
         if model is None:
             return None
-        terms = next(t for p, t in cands if p == params)
         return Extension(
             model=model,
-            params={**params, "terms": [t.label for t in terms]},
+            params=params,
             description=self.description,
             train_gain=score - ctx.baseline_score,
         )
@@ -76,8 +84,40 @@ class CoulombFriction(_TermEffect):
     cause = "coulomb_friction"
     description = (
         "Coulomb friction: adds tanh(velocity/ε) of every output (a smoothed sign of the "
-        "direction of motion), with a constant for asymmetric friction (Fc+ ≠ Fc-)."
+        "direction of motion), with tanh² for asymmetric friction (Fc+ ≠ Fc-); or, for "
+        "friction in a force transmission, a play (dead band that follows the direction) on "
+        "every input."
     )
+    #: Half-widths of the input play, as fractions of each input's standard deviation.
+    play_fractions = (0.01, 0.02, 0.04, 0.08, 0.16)
+
+    def builders(self, ctx: Context) -> list[tuple[dict[str, Any], Callable[[Dataset], Model]]]:
+        """Velocity-sign terms, and play on the inputs (quasi-static friction in force space).
+
+        Static friction along a transmission (a tendon over capstans, a cable in a sheath, a
+        gear train with friction) passes a change of the driving force only after the
+        force has moved by the friction band since the last reversal: a play operator in
+        force space, of width set by the friction force.  Rate-independent, it shows in a
+        slow quasi-static experiment where ``sign(velocity)`` terms of a dynamic model do
+        not.
+        """
+        cands = super().builders(ctx)
+        ustd = ctx.train.u.std(axis=0)
+        for frac in self.play_fractions:
+            blocks = [
+                Block("play", n, {"width": float(frac * ustd[m])})
+                for m, n in enumerate(ctx.train.inputs)
+                if ustd[m] > 0
+            ]
+            if blocks:
+                params = {
+                    "where": "inputs",
+                    "structure": "play in force space",
+                    "fraction_of_std": frac,
+                    "width": [b.params["width"] for b in blocks],
+                }
+                cands.append((params, refit_with_input_blocks(ctx.refit, blocks)))
+        return cands
 
     def candidates(self, ctx: Context) -> list[tuple[dict[str, Any], list[Term]]]:
         out = []
@@ -86,17 +126,23 @@ class CoulombFriction(_TermEffect):
             if 4 * m >= min(e.n_samples for e in ctx.train.experiments):
                 continue
             vel = np.abs(_velocity(y, m))
-            for q in (0.01, 0.05, 0.2):
+            for q in (0.02, 0.2):
                 eps = np.quantile(vel, q, axis=0)
                 eps = np.where(eps > 0, eps, np.max(vel, axis=0) * 1e-3 + 1e-12)
                 terms = [
                     Term((Factor(name, fn="tanh", lag=1, diff=m, scale=float(1.0 / eps[j])),))
                     for j, name in enumerate(ctx.train.outputs)
                 ]
-                params = {"velocity_span": m, "epsilon": [float(e) for e in eps]}
+                params = {
+                    "structure": "sign of velocity",
+                    "velocity_span": m,
+                    "epsilon": [float(e) for e in eps],
+                }
                 out.append(({**params, "asymmetric": False}, terms))
-                # Asymmetric friction: sign term plus a constant (the EMPS drive needs it).
-                out.append(({**params, "asymmetric": True}, [*terms, Term()]))
+                # Asymmetric friction (Fc+ ≠ Fc-): tanh² is |sign(velocity)| while moving and
+                # zero at rest, so the asymmetry is not a constant load (that is gravity's).
+                sq = [Term((t.factors[0], t.factors[0])) for t in terms]
+                out.append(({**params, "asymmetric": True}, [*terms, *sq]))
         return out
 
     def signature(
@@ -125,22 +171,41 @@ class NonlinearStiffness(_TermEffect):
     name = "nonlinear_stiffness"
     cause = "nonlinear_stiffness"
     description = (
-        "Nonlinear stiffness: adds odd powers y^3 (and y^5) of every output, a hardening or "
-        "softening spring."
+        "Nonlinear stiffness: adds odd powers y^3 (and y^5), or tanh(y/s), of every output: a "
+        "hardening or softening spring."
     )
 
     def candidates(self, ctx: Context) -> list[tuple[dict[str, Any], list[Term]]]:
         y = ctx.train.y
         mu = y.mean(axis=0)
         sd = np.where(y.std(axis=0) > 0, y.std(axis=0), 1.0)
-        outs = []
+        outs: list[tuple[dict[str, Any], list[Term]]] = []
         for powers in ((3,), (3, 5)):
             terms = [
                 Term((Factor(name, power=p, lag=1, scale=float(1 / sd[j]), offset=float(mu[j])),))
                 for p in powers
                 for j, name in enumerate(ctx.train.outputs)
             ]
-            outs.append(({"powers": list(powers)}, terms))
+            outs.append(({"structure": "odd powers", "powers": list(powers)}, terms))
+        # A spring whose stiffness changes and then levels off (softening that saturates, or a
+        # stop): tanh of the output at a few scales.  Bounded, so a softening fit cannot make
+        # the simulation run away the way a negative cubic does at large amplitude.
+        for c in (0.5, 1.0, 2.0):
+            terms = [
+                Term(
+                    (
+                        Factor(
+                            name,
+                            fn="tanh",
+                            lag=1,
+                            scale=float(1 / (c * sd[j])),
+                            offset=float(mu[j]),
+                        ),
+                    )
+                )
+                for j, name in enumerate(ctx.train.outputs)
+            ]
+            outs.append(({"structure": "tanh", "scale_in_std": c}, terms))
         return outs
 
     def signature(

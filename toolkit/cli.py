@@ -297,6 +297,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         options=options,
         effects=chosen,
         alpha=args.alpha,
+        min_relative_gain=args.min_relative_gain,
         seed=args.seed,
         progress=sys.stderr.isatty(),
     )
@@ -337,10 +338,11 @@ def render_diagnosis(summary: dict[str, Any]) -> str:
     if summary.get("ambiguous"):
         lines.append(summary["ambiguous"]["statement"])
         lines.append("to tell them apart: " + summary["ambiguous"]["experiment"])
-    lines.append("findings (validation gain, p-value):")
+    lines.append("findings (validation gain, p-value adjusted for trying every effect):")
     for f in summary["findings"]:
         mark = "*" if f["significant"] else " "
-        lines.append(f" {mark} {f['cause']:<20} {f['gain']:+8.2f}  p={f['p_value']:.3g}")
+        p = f.get("p_adjusted", f["p_value"])
+        lines.append(f" {mark} {f['cause']:<20} {f['gain']:+8.2f}  p_adj={p:.3g}")
     if summary.get("report"):
         lines.append(f"report: {summary['report']}")
     return "\n".join(lines)
@@ -460,6 +462,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--option", action="append", metavar="KEY=VALUE", help="baseline option")
     p.add_argument("--effects", help="effects to try, comma separated (default: all registered)")
     p.add_argument("--alpha", type=float, default=0.01, help="significance level (default 0.01)")
+    p.add_argument(
+        "--min-relative-gain",
+        type=float,
+        default=0.02,
+        help="smallest relative drop of the validation error energy that counts (default 0.02)",
+    )
     p.add_argument("--seed", type=int, default=0, help="seed for every random choice")
     p.add_argument("--json", help="write the result as JSON here")
     p.add_argument(

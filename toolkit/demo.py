@@ -195,7 +195,8 @@ def _render_diagnosis(d: dict[str, Any]) -> str:
         )
     for f in s["findings"][:4]:
         lines.append(
-            f"  {'*' if f['significant'] else ' '} {f['cause']:<20} gain {f['gain']:+7.2f}  p={f['p_value']:.2g}"
+            f"  {'*' if f['significant'] else ' '} {f['cause']:<20} gain {f['gain']:+7.2f}"
+            f"  p_adj={f.get('p_adjusted', f['p_value']):.2g}"
         )
     return "\n".join(lines)
 

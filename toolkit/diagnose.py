@@ -1,30 +1,34 @@
 """Diagnose: show what a model's simulation gets wrong, name the cause, extend, measure the gain.
 
-The procedure, for any registered identifier as the baseline and any registered effects:
+The procedure, for any registered identifier as the baseline and any registered effects
+(``docs/diagnose.md`` has the reasoning and the calibration):
 
 1. **Baseline.** Identify on the training data; simulate (free run) on the validation data.
 2. **Residuals.** Analyse where the validation error concentrates and how the one-step
-   residuals correlate with the inputs (:mod:`tendonkit.residuals`).
-3. **Candidates.** Every effect proposes an extension of the baseline with its own parameters
+   residuals correlate with the inputs (:mod:`tendonkit.residuals`); effects turn this into
+   their evidence.
+3. **Candidates.** Every effect proposes extensions of the baseline with its own parameters
    (a delay, a dead-zone threshold, a friction term, ...).  Each candidate is fitted on the
-   *training* data and its parameters are chosen by its free-run simulation fit on the same
-   training data.  (An inner train/check split was tried first and rejected: an effect that
-   shows only in part of a record — the tanks overflow early in theirs — is then invisible to
-   the selection.  An effect adds one or two parameters, so the in-sample simulation fit is a
-   sound criterion; the honest test is the next step.)
-4. **Gain.** Each extended model is simulated on the validation data, which no choice above has
-   seen.  The gain is the change in mean fit (percentage points).
-5. **Significance.** A gain counts only if it is both *statistically* significant — a one-sided
-   batch-means t-test on the per-sample loss difference (squared errors normalised by output
-   variance), robust to the strong autocorrelation of simulation errors — and *practically*
-   significant: the validation error energy must drop by at least ``min_relative_gain``.
-   Noise alone then never names a cause: without structure the loss difference has zero mean.
+   *training* data and the effect keeps the one with the best free-run simulation fit on the
+   same training data.  (An inner train/check split was rejected: an effect that shows only
+   in part of a record — the tanks overflow early in theirs — is then invisible to the
+   selection.)  The validation data are never seen here.
+4. **Gain.** Each extended model is simulated on the validation data.  The gain is the change
+   in mean fit (percentage points); findings are ranked by it.
+5. **Significance.** :func:`loss_test` on the per-sample validation losses: a one-sided
+   t-test over contiguous batches (4 integrated autocorrelation times long, 5–50 of them) of
+   ``log((1 - δ)·L_base,b / L_ext,b)`` — the extension must remove more than the margin
+   ``δ = min_relative_gain`` of the baseline's error energy in a typical stretch of the
+   record.  The p-values are Holm-adjusted over the effects tried, weighted by the effects'
+   *training* gains (fixed before the validation data are looked at).  Noise alone then
+   never names a cause: without structure the batch log-ratios scatter around
+   ``log(1 - δ) < 0``.
 6. **Naming.** The significant finding with the largest gain names the cause; with none the
-   cause is ``none``.  Parsimony breaks statistical ties: when a finding with fewer added
-   parameters is not significantly worse on the validation loss than the best one, it names
-   the cause instead (an extension that contains another must earn its extra parameters).  When the runner-up explains the data about as well (its gain is within
-   ``tie_ratio`` of the best, or the two extended models are not significantly different),
-   the result says so and names an experiment that would tell the two apart.
+   cause is ``none``.  Parsimony breaks statistical ties: a significant finding with fewer
+   added parameters that the best one does not beat significantly names the cause instead.
+   The margin to the best finding of another cause is reported; when that runner-up is
+   significant too and about as good (gain within ``tie_ratio``, or not significantly
+   worse), the result says so and names an experiment that would tell the two apart.
 """
 
 from __future__ import annotations
@@ -143,8 +147,8 @@ class Context:
     ) -> tuple[dict[str, Any], Model | None, float, list[dict[str, Any]]]:
         """Choose among ``(params, build)`` candidates by their training simulation fit.
 
-        Returns the best parameters, the best model (built on ``train``), its score and every
-        candidate's score.
+        Returns the best parameters, the best model (built on ``train``), its score
+        (:meth:`score`) and every candidate's score.
         """
         best: tuple[dict[str, Any], Model | None, float] = ({}, None, -math.inf)
         tried: list[dict[str, Any]] = []
@@ -168,7 +172,9 @@ class Extension:
     model: Model
     params: dict[str, Any]
     description: str
-    train_gain: float = 0.0  # gain of the training simulation fit, for information
+    #: Gain of the training simulation fit (points).  It sets the effect's share of the error
+    #: budget in the weighted Holm adjustment; 0 or less means the effect cannot name a cause.
+    train_gain: float = 0.0
 
     @property
     def n_params(self) -> int:
@@ -195,6 +201,8 @@ class Finding:
     description: str
     model: Model | None = None
     n_params: int = 0
+    p_adjusted: float = 1.0
+    test: dict[str, Any] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready form (without the model)."""
@@ -206,7 +214,9 @@ class Finding:
             "fit": self.fit,
             "relative_gain": self.relative_gain,
             "p_value": self.p_value,
+            "p_adjusted": self.p_adjusted,
             "significant": self.significant,
+            "test": self.test,
             "params": self.params,
             "evidence": self.evidence,
             "description": self.description,
@@ -226,10 +236,13 @@ class Diagnosis:
     ambiguous: dict[str, Any] | None
     settings: dict[str, Any]
     skipped: tuple[dict[str, str], ...] = ()
+    named_effect: str | None = None
 
     @property
     def best(self) -> Finding | None:
         """The finding that names the cause (None when the cause is ``none``)."""
+        if self.named_effect is not None:
+            return next((f for f in self.findings if f.effect == self.named_effect), None)
         sig = [f for f in self.findings if f.significant]
         return sig[0] if sig else None
 
@@ -263,7 +276,9 @@ class Diagnosis:
                 "params": best.params if best else {},
                 "model": model_path,
             },
+            "named_effect": best.effect if best else None,
             "margin_to_runner_up": self.margin,
+            "runner_up": self.runner_up.cause if self.runner_up else None,
             "ambiguous": self.ambiguous,
             "findings": [f.to_dict() for f in self.findings],
             "skipped": list(self.skipped),
@@ -273,10 +288,20 @@ class Diagnosis:
 
     @property
     def margin(self) -> float | None:
-        """Gain of the best finding minus the runner-up's (percentage points)."""
-        if len(self.findings) < 2 or self.best is None:
+        """Gain of the named finding minus the best gain of another cause (points)."""
+        best = self.best
+        if best is None:
             return None
-        return self.findings[0].gain - self.findings[1].gain
+        others = [f.gain for f in self.findings if f.cause != best.cause]
+        return best.gain - max(others) if others else None
+
+    @property
+    def runner_up(self) -> Finding | None:
+        """The finding of another cause with the largest gain."""
+        best = self.best
+        if best is None:
+            return None
+        return next((f for f in self.findings if f.cause != best.cause), None)
 
 
 def _mean(d: dict[str, float]) -> float:
@@ -299,25 +324,151 @@ def mean_fit(model: Model, data: Dataset) -> float:
     return float(np.mean(f)) if np.all(np.isfinite(f)) else -math.inf
 
 
-def batch_means_test(d: FloatArray, n_batches: int = 10) -> float:
-    """One-sided p-value that the mean of ``d`` is > 0, from contiguous batch means.
+@dataclass(frozen=True)
+class LossTest:
+    """One-sided test that an alternative model's validation loss is lower than a reference's.
 
-    Batch means stay valid when ``d`` is strongly autocorrelated (simulation errors are), as
-    long as the batches are much longer than the correlation time.
+    Attributes
+    ----------
+    p_value : float
+        One-sided p-value of ``H0: E[log((1 - margin) L_ref,b / L_alt,b)] <= 0`` over batches b.
+    log_ratio : float
+        Mean over batches of ``log(L_ref,b / L_alt,b)`` (0 = no change; 0.1 ≈ 10 % less
+        error energy in a typical batch).
+    std_error : float
+        Its standard error from the batches.
+    n_batches, batch_length : int
+        The batches.
+    tau : float
+        Integrated autocorrelation time of the loss difference, in samples.
+    """
+
+    p_value: float
+    log_ratio: float
+    std_error: float
+    n_batches: int
+    batch_length: int
+    tau: float
+
+    def to_dict(self) -> dict[str, float]:
+        """Plain data."""
+        return dataclasses.asdict(self)
+
+
+def autocorrelation_time(d: FloatArray, c: float = 5.0) -> float:
+    """Integrated autocorrelation time ``1 + 2 Σ ρ_k`` with Sokal's automatic window.
+
+    The sum runs to the smallest lag ``M >= c·τ(M)``; white noise gives 1, an AR(1) process
+    with coefficient ``a`` gives about ``(1 + a) / (1 - a)``.
+    """
+    d = np.asarray(d, dtype=float) - np.mean(d)
+    n = len(d)
+    if n < 4:
+        return 1.0
+    f = np.fft.rfft(d, 2 * n)
+    ac = np.fft.irfft(f * np.conj(f))[:n]
+    if ac[0] <= 0:
+        return 1.0
+    rho = ac / ac[0]
+    tau = 1.0
+    for m in range(1, n // 2):
+        tau += 2.0 * rho[m]
+        if m >= c * tau:
+            break
+    return float(max(tau, 1.0))
+
+
+def loss_test(
+    reference: FloatArray,
+    alternative: FloatArray,
+    *,
+    margin: float = 0.0,
+    k: float = 4.0,
+    min_batches: int = 5,
+    max_batches: int = 50,
+) -> LossTest:
+    """Test that ``alternative`` has lower loss than ``reference`` by more than ``margin``.
+
+    Both are per-sample losses on the same validation samples.  Simulation errors are
+    strongly autocorrelated and their size changes along a record by orders of magnitude
+    (a large circle against a small one), so the test works on contiguous batches:
+
+    1. the batch length is ``k`` integrated autocorrelation times of the loss difference
+       (:func:`autocorrelation_time`), so that batch statistics are nearly independent; the
+       number of batches is clamped to ``[min_batches, max_batches]``;
+    2. per batch, ``r_b = log((1 - margin)·mean(reference_b)) - log(mean(alternative_b))``,
+       the log of the batch's error-energy ratio: scale-free, so a batch of large motion does
+       not outweigh every other batch;
+    3. a one-sided t-test of ``mean(r_b) > 0`` with ``n_batches - 1`` degrees of freedom.
+
+    The null hypothesis is "the alternative does not remove more than ``margin`` of the
+    reference's error energy in a typical stretch of the record".  Pure noise and an
+    extension without structure give symmetric ``r_b`` around ``log(1 - margin) <= 0``.
+
+    Parameters
+    ----------
+    reference, alternative : array (n,)
+        Per-sample losses (non-negative).
+    margin : float
+        Smallest relative reduction of the error energy that counts, in [0, 1).
+    k : float
+        Batch length in autocorrelation times.
+    min_batches, max_batches : int
+        Range of the number of batches.
+
+    Returns
+    -------
+    LossTest
     """
     from scipy import stats
 
-    d = np.asarray(d, dtype=float)
-    if not np.all(np.isfinite(d)):
-        return 1.0
-    n = len(d)
-    b = max(min(n_batches, n // 20), 2)
-    means = np.array([chunk.mean() for chunk in np.array_split(d, b)])
-    sd = means.std(ddof=1)
-    if sd == 0:
-        return 0.0 if means.mean() > 0 else 1.0
-    t = means.mean() / (sd / np.sqrt(b))
-    return float(stats.t.sf(t, df=b - 1))
+    ref = np.asarray(reference, dtype=float)
+    alt = np.asarray(alternative, dtype=float)
+    n = len(ref)
+    if n < 2 * min_batches or not (np.all(np.isfinite(ref)) and np.all(np.isfinite(alt))):
+        return LossTest(1.0, float("nan"), float("nan"), 0, 0, float("nan"))
+    tau = autocorrelation_time(ref - alt)
+    length = math.ceil(k * tau)
+    b = int(np.clip(n // max(length, 1), min_batches, max_batches))
+    tiny = 1e-12 * max(float(np.mean(ref)), float(np.mean(alt)), 1e-300)
+    mr = np.array([c.mean() for c in np.array_split(ref, b)]) + tiny
+    ma = np.array([c.mean() for c in np.array_split(alt, b)]) + tiny
+    r = np.log(mr / ma)
+    mean = float(r.mean())
+    se = float(r.std(ddof=1)) / math.sqrt(b)
+    shifted = mean + math.log(1.0 - margin)
+    if se == 0:
+        p = 0.0 if shifted > 0 else 1.0
+    else:
+        p = float(stats.t.sf(shifted / se, df=b - 1))
+    return LossTest(p, mean, se, b, n // b, tau)
+
+
+def holm(p_values: Sequence[float], weights: Sequence[float] | None = None) -> list[float]:
+    """Holm–Bonferroni adjusted p-values, optionally weighted (Holm 1979).
+
+    With weights ``w_i`` (non-negative, normalised here) hypothesis ``i`` is tested at
+    ``α·w_i / Σ_{remaining} w``; equal weights give the ordinary Holm procedure.  A zero
+    weight never rejects.  The family-wise error rate stays at ``α`` for any weights fixed
+    before the p-values are seen.
+    """
+    m = len(p_values)
+    if m == 0:
+        return []
+    w = np.ones(m) if weights is None else np.clip(np.asarray(weights, dtype=float), 0.0, None)
+    if not np.any(w > 0):
+        w = np.ones(m)
+    w = w / w.sum()
+    ratio = [p_values[i] / w[i] if w[i] > 0 else math.inf for i in range(m)]
+    order = sorted(range(m), key=lambda i: ratio[i])
+    out = [1.0] * m
+    running = 0.0
+    remaining = 1.0
+    for i in order:
+        running = max(running, 1.0 if math.isinf(ratio[i]) else min(1.0, remaining * ratio[i]))
+        out[i] = running
+        remaining -= w[i]
+    return out
 
 
 def _loss(y: FloatArray, y_hat: FloatArray) -> FloatArray:
@@ -338,7 +489,7 @@ def diagnose(
     options: dict[str, Any] | None = None,
     effects: Sequence[str] | None = None,
     alpha: float = 0.01,
-    min_relative_gain: float = 0.05,
+    min_relative_gain: float = 0.02,
     tie_ratio: float = 0.8,
     seed: int = 0,
     progress: bool = False,
@@ -356,9 +507,10 @@ def diagnose(
     effects : sequence of str, optional
         Names of the effects to try (default: every registered effect).
     alpha : float
-        Significance level of the one-sided test on the validation loss difference.
+        Family-wise significance level over all effects tried (Holm–Bonferroni).
     min_relative_gain : float
-        Smallest relative drop of the validation error energy that counts.
+        Margin δ of the test: a finding counts only if it removes more than this share of the
+        baseline's validation error energy, ``H0: E[L_ext] >= (1 - δ) E[L_base]``.
     tie_ratio : float
         A runner-up whose gain reaches this fraction of the best gain is a tie.
     seed : int
@@ -386,6 +538,8 @@ def diagnose(
         problems.append(f"alpha must be in (0, 0.5), found {alpha}.")
     if not 0 <= min_relative_gain < 1:
         problems.append(f"min_relative_gain must be in [0, 1), found {min_relative_gain}.")
+    if not 0 < tie_ratio <= 1:
+        problems.append(f"tie_ratio must be in (0, 1], found {tie_ratio}.")
     if (train.inputs, train.outputs) != (valid.inputs, valid.outputs):
         problems.append(
             f"training and validation data differ in signals: {train.inputs}->{train.outputs} "
@@ -400,7 +554,7 @@ def diagnose(
         raise OptionError("diagnose cannot run:", problems)
     identifier = identifiers().get(method).create(**(options or {}))
     baseline = identifier.identify(train)
-    y_valid = valid.y
+    y_valid = _aligned(baseline, valid).y
     base_sim = _simulate_all(baseline, valid)
     base_fit = {n: float(v) for n, v in zip(baseline.output_names, fit(y_valid, base_sim))}
     base_loss = _loss(y_valid, base_sim)
@@ -412,7 +566,9 @@ def diagnose(
         seed=seed,
     )
     valid_res = analyse(baseline, valid)
-    findings: list[Finding] = []
+    delta = float(min_relative_gain)
+    raw: list[dict[str, Any]] = []
+    losses: dict[str, FloatArray] = {}
     skipped: list[dict[str, str]] = []
     for name in tqdm(names, desc="diagnose", disable=not progress, unit="effect"):
         effect = registry.get(name)
@@ -430,32 +586,49 @@ def diagnose(
             n: float(v) if np.isfinite(v) else -1e300 for n, v in zip(baseline.output_names, f)
         }
         loss = _loss(y_valid, sim)
+        losses[name] = loss
         rel = float(1.0 - loss.mean() / base_loss.mean()) if base_loss.mean() > 0 else 0.0
-        p = batch_means_test(base_loss - loss)
+        test = loss_test(base_loss, loss, margin=delta)
         gain = _mean(ext_fit) - _mean(base_fit) if np.all(np.isfinite(f)) else -math.inf
-        significant = bool(p < alpha and rel >= min_relative_gain and gain > 0)
         evidence = effect.signature(ctx, baseline, valid, valid_res) or {}
-        findings.append(
-            Finding(
-                cause=effect.cause,
-                effect=name,
-                gain=float(gain),
-                fit=ext_fit,
-                relative_gain=rel,
-                p_value=p,
-                significant=significant,
-                params=ext.params,
-                evidence=evidence,
-                description=ext.description,
-                model=ext.model,
-                n_params=ext.n_params - added_parameters(baseline),
-            )
+        raw.append(
+            {
+                "cause": effect.cause,
+                "effect": name,
+                "gain": float(gain),
+                "fit": ext_fit,
+                "relative_gain": rel,
+                "p_value": test.p_value,
+                "params": ext.params,
+                "evidence": evidence,
+                "description": ext.description,
+                "model": ext.model,
+                "n_params": ext.n_params - added_parameters(baseline),
+                "test": {**test.to_dict(), "margin": delta, "train_gain": ext.train_gain},
+                "train_gain": ext.train_gain,
+            }
         )
-    findings.sort(key=lambda f: (f.significant, f.gain), reverse=True)
-    findings = _parsimony(findings, valid, alpha)
+    # Weighted Holm: the weights come from the *training* gains (fixed before the validation
+    # data are looked at), so the effects that found structure in the training data get most
+    # of the error budget α, and an extension that did not improve the training fit cannot
+    # name a cause.
+    adjusted = holm(
+        [r["p_value"] for r in raw], [max(r["train_gain"], 0.0) for r in raw] if raw else None
+    )
+    findings = [
+        Finding(
+            **{k: v for k, v in r.items() if k != "train_gain"},
+            p_adjusted=p_adj,
+            significant=bool(p_adj < alpha and r["gain"] > 0),
+        )
+        for r, p_adj in zip(raw, adjusted)
+    ]
+    findings.sort(key=lambda f: f.gain, reverse=True)
+    best = _name_cause(findings, losses, alpha)
     findings = [_with_training_fit(f, train) for f in findings]
-    best = next((f for f in findings if f.significant), None)
-    ambiguous = _ambiguity(findings, valid, tie_ratio, alpha) if best else None
+    if best is not None:
+        best = next(f for f in findings if f.effect == best.effect)
+    ambiguous = _ambiguity(findings, best, losses, tie_ratio, alpha) if best else None
     return Diagnosis(
         cause=best.cause if best else "none",
         baseline_method=method,
@@ -471,36 +644,54 @@ def diagnose(
             "seed": seed,
             "effects": names,
             "options": dict(options or {}),
+            "test": "one-sided t-test over batches of log((1 - min_relative_gain) L_base / "
+            "L_ext), batches of 4 autocorrelation times; Holm adjustment over the effects "
+            "tried, weighted by their training gains",
         },
         skipped=tuple(skipped),
+        named_effect=best.effect if best else None,
     )
 
 
 def added_parameters(model: Model) -> int:
-    """Count the scalar parameters in a model's blocks and nonlinear terms."""
+    """Count the parameters of a model's blocks and nonlinear terms.
+
+    A term has one coefficient per output (per state for state space).  Blocks are counted
+    per kind and parameter, not per signal: the effects derive every signal's block from one
+    chosen value (a delay, a width as a fraction of each signal's spread), so four play blocks
+    on four inputs add one free parameter, like two on two outputs.
+    """
     rep = model.representation
     n_terms = len(getattr(rep, "terms", ()))
     per_term = len(model.outputs) if not hasattr(rep, "E") else rep.n_states  # type: ignore[union-attr]
-    blocks = sum(len(b.params) for b in (*model.input_blocks, *model.output_blocks))
-    return n_terms * per_term + blocks
+    kinds = {
+        (where, b.kind, key)
+        for where, blocks in (("in", model.input_blocks), ("out", model.output_blocks))
+        for b in blocks
+        for key in b.params
+    }
+    return n_terms * per_term + len(kinds)
 
 
-def _parsimony(findings: list[Finding], valid: Dataset, alpha: float) -> list[Finding]:
-    """Move a simpler significant finding that is not significantly worse to the front."""
+def _name_cause(
+    findings: list[Finding], losses: dict[str, FloatArray], alpha: float
+) -> Finding | None:
+    """The significant finding with the largest gain, unless a simpler one is as good.
+
+    Parsimony breaks statistical ties: a significant finding with fewer added parameters
+    that the best one does not beat significantly (same one-sided test, no margin) names the
+    cause instead: an extension that contains another must earn its extra parameters.
+    """
     sig = [f for f in findings if f.significant]
-    if len(sig) < 2 or sig[0].model is None:
-        return findings
+    if not sig:
+        return None
     best = sig[0]
-    y = valid.y
-    l_best = _loss(y, _simulate_all(best.model, valid))
     for f in sig[1:]:
-        if f.n_params >= best.n_params or f.model is None:
+        if f.n_params >= best.n_params:
             continue
-        l_f = _loss(y, _simulate_all(f.model, valid))
-        if batch_means_test(l_f - l_best) >= alpha:  # best is not significantly better
-            rest = [g for g in findings if g is not f]
-            return [f, *rest]
-    return findings
+        if loss_test(losses[f.effect], losses[best.effect]).p_value >= alpha:
+            return f
+    return best
 
 
 def _with_training_fit(f: Finding, train: Dataset) -> Finding:
@@ -514,28 +705,28 @@ def _with_training_fit(f: Finding, train: Dataset) -> Finding:
 
 
 def _ambiguity(
-    findings: list[Finding], valid: Dataset, tie_ratio: float, alpha: float
+    findings: list[Finding],
+    best: Finding,
+    losses: dict[str, FloatArray],
+    tie_ratio: float,
+    alpha: float,
 ) -> dict[str, Any] | None:
-    sig = [f for f in findings if f.significant]
-    if len(sig) < 2:
+    """A tie between the named cause and the best significant finding of another cause."""
+    b = next((f for f in findings if f.significant and f.cause != best.cause), None)
+    if b is None:
         return None
-    a, b = sig[0], sig[1]
-    if a.cause == b.cause:
-        return None
-    close = b.gain >= tie_ratio * a.gain
-    if not close and a.model is not None and b.model is not None:
-        y = valid.y
-        la = _loss(y, _simulate_all(a.model, valid))
-        lb = _loss(y, _simulate_all(b.model, valid))
-        close = batch_means_test(lb - la) >= alpha
+    a = best
+    test = loss_test(losses[b.effect], losses[a.effect])
+    close = b.gain >= tie_ratio * a.gain or test.p_value >= alpha
     if not close:
         return None
     return {
         "between": [a.cause, b.cause],
         "gains": [a.gain, b.gain],
+        "p_value": test.p_value,
         "statement": (
             f"{a.cause} (gain {a.gain:.2f}) and {b.cause} (gain {b.gain:.2f}) explain these data "
-            "about equally well."
+            f"about equally well (one-sided p = {test.p_value:.3g} that {a.cause} is better)."
         ),
         "experiment": DISCRIMINATING.get(frozenset({a.cause, b.cause}), DEFAULT_EXPERIMENT),
     }

@@ -58,7 +58,7 @@ def write_report(
         rep.text(
             f"Named cause: {best.cause} ({best.description}). Validation fit "
             f"{d['baseline']['fit']:.2f} % -> {d['extended']['fit']:.2f} % "
-            f"(gain {best.gain:+.2f} points, p = {best.p_value:.2g})."
+            f"(gain {best.gain:+.2f} points, adjusted p = {best.p_adjusted:.2g})."
         )
         if diagnosis.margin is not None:
             rep.text(f"Margin to the runner-up: {diagnosis.margin:.2f} points.")
@@ -74,7 +74,7 @@ def write_report(
             f["cause"],
             f["gain"],
             f["relative_gain"] * 100,
-            f["p_value"],
+            f.get("p_adjusted", f["p_value"]),
             "yes" if f["significant"] else "no",
             f["n_params"],
         ]
@@ -85,7 +85,7 @@ def write_report(
             "cause",
             "gain [pts]",
             "error energy drop [%]",
-            "p-value",
+            "adjusted p",
             "significant",
             "added parameters",
         ],

@@ -85,6 +85,8 @@ class ResidualAnalysis:
 
 def _xcorr(e: FloatArray, u: FloatArray, max_lag: int) -> FloatArray:
     """Normalised cross-correlation r(lag) = corr(e[t], u[t-lag]), lag = -max_lag..max_lag."""
+    e = np.ascontiguousarray(e, dtype=float)
+    u = np.ascontiguousarray(u, dtype=float)
     e = e - e.mean()
     u = u - u.mean()
     den = np.sqrt(np.sum(e * e) * np.sum(u * u))
@@ -92,11 +94,11 @@ def _xcorr(e: FloatArray, u: FloatArray, max_lag: int) -> FloatArray:
     out = np.zeros(2 * max_lag + 1)
     if den == 0:
         return out
-    for i, lag in enumerate(range(-max_lag, max_lag + 1)):
-        if lag >= 0:
-            out[i] = np.dot(e[lag:], u[: n - lag]) / den
-        else:
-            out[i] = np.dot(e[: n + lag], u[-lag:]) / den
+    # Σ_t e[t] u[t-lag] for every lag at once, by FFT (zero-padded, so no wrap-around).
+    size = 1 << int(np.ceil(np.log2(2 * n)))
+    full = np.fft.irfft(np.fft.rfft(e, size) * np.conj(np.fft.rfft(u, size)), size)
+    lags = np.arange(-max_lag, max_lag + 1)
+    out[:] = full[lags % size] / den
     return out
 
 

@@ -27,8 +27,17 @@ def demo(tmp_path_factory):
 
 def test_files_are_produced(demo):
     out, _ = demo
-    for name in ("index.html", "summary.json", "model.fmu", "plant_paper_like.fmu", "n4sid.json",
-                 "arx.json", "sindyc.json", "diagnose/index.html", "diagnose/extended_model.json"):
+    for name in (
+        "index.html",
+        "summary.json",
+        "model.fmu",
+        "plant_paper_like.fmu",
+        "n4sid.json",
+        "arx.json",
+        "sindyc.json",
+        "diagnose/index.html",
+        "diagnose/extended_model.json",
+    ):
         assert (out / name).exists(), name
     pngs = list((out / "figures").glob("*.png"))
     assert len(pngs) >= 8  # Fig. 2 (2), Fig. 3 and 4 per method (6)
@@ -48,6 +57,7 @@ def test_printed_table_parses_and_agrees_with_summary_and_report(demo):
         q1, q2, mean, printed_paper = map(float, m.groups())
         assert printed_paper == paper
         assert q1 == pytest.approx(rows[method]["fit"]["q1"], abs=0.006)
+        assert q2 == pytest.approx(rows[method]["fit"]["q2"], abs=0.006)
         assert mean == pytest.approx(rows[method]["mean_fit"], abs=0.006)
         assert f"<td>{mean:.2f}</td>" in html  # the report shows the same number
     assert summary["export"]["problems"] == []
@@ -55,6 +65,14 @@ def test_printed_table_parses_and_agrees_with_summary_and_report(demo):
     for name, res in summary["mpc"]["results"].items():
         assert res["input_bound_violations"] == 0, name
     assert summary["diagnosis"]["cause"] in {
-        "coulomb_friction", "backlash", "hysteresis", "input_delay", "dead_zone", "saturation",
-        "actuator_lag", "nonlinear_stiffness", "gravity", "none",
+        "coulomb_friction",
+        "backlash",
+        "hysteresis",
+        "input_delay",
+        "dead_zone",
+        "saturation",
+        "actuator_lag",
+        "nonlinear_stiffness",
+        "gravity",
+        "none",
     }

@@ -1,0 +1,213 @@
+"""diagnose: the statistics (test calibration, Holm), the procedure on small known systems, and
+the result's JSON schema.  The plant and real-data suites live in tests/integration."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from scipy.signal import lfilter
+
+from tendonkit.dataset import Dataset, Experiment
+from tendonkit.diagnose import autocorrelation_time, diagnose, holm, loss_test
+from tendonkit.errors import OptionError
+
+
+def _ar1(rng, a, n, burn=2000):
+    return lfilter([1.0], [1.0, -a], rng.standard_normal(n + burn))[burn:]
+
+
+# -- statistics -----------------------------------------------------------------------------
+
+
+def test_autocorrelation_time_of_white_noise_and_ar1():
+    rng = np.random.default_rng(0)
+    assert autocorrelation_time(rng.standard_normal(20000)) == pytest.approx(1.0, abs=0.15)
+    # AR(1) with a = 0.9: τ = (1 + a) / (1 - a) = 19; the windowed estimate is within 25 %.
+    assert autocorrelation_time(_ar1(rng, 0.9, 50000)) == pytest.approx(19.0, rel=0.25)
+
+
+@pytest.mark.parametrize("a", [0.0, 0.95, 0.99])
+def test_loss_test_keeps_its_level_under_the_null(a):
+    """Two models with equally good, strongly autocorrelated, heteroskedastic errors."""
+    rng = np.random.default_rng(1)
+    n, reps = 3000, 300
+    env = np.exp(2.0 * np.sin(np.linspace(0.0, 6.0, n)))
+    rejections = 0
+    for _ in range(reps):
+        common = _ar1(rng, a, n)
+        e1 = env * (common + 0.5 * _ar1(rng, a, n))
+        e2 = env * (common + 0.5 * _ar1(rng, a, n))
+        rejections += loss_test(e1**2, e2**2).p_value < 0.01
+    # 1 % nominal; 3.3 % allows for the binomial spread of 300 draws (sd 0.6 %) and the
+    # mild excess of the batch-means approximation at a = 0.99 (see docs/diagnose.md).
+    assert rejections / reps <= 0.033
+
+
+def test_loss_test_detects_a_consistent_improvement_and_respects_the_margin():
+    rng = np.random.default_rng(2)
+    n = 4000
+    base = (_ar1(rng, 0.95, n) + 0.3 * rng.standard_normal(n)) ** 2
+    better = 0.7 * base  # 30 % less error energy everywhere
+    assert loss_test(base, better).p_value < 1e-6
+    assert loss_test(base, better, margin=0.2).p_value < 1e-6  # 30 % > 20 %
+    assert loss_test(base, better, margin=0.4).p_value > 0.5  # 30 % < 40 %
+    assert loss_test(base, base).p_value > 0.4
+
+
+def test_loss_test_counts_a_diverged_alternative_as_no_evidence():
+    base = np.ones(500)
+    assert loss_test(base, np.full(500, np.nan)).p_value == 1.0
+
+
+def test_holm_equal_weights_is_the_classic_procedure():
+    p = [0.01, 0.04, 0.03, 0.2]
+    assert holm(p) == pytest.approx([0.04, 0.09, 0.09, 0.2])
+
+
+def test_holm_weights_shift_the_error_budget_and_zero_weight_never_rejects():
+    p = [0.004, 0.004, 0.5]
+    assert holm(p, [1.0, 0.0, 0.0])[0] == pytest.approx(0.004)
+    assert holm(p, [1.0, 0.0, 0.0])[1] == 1.0
+    assert holm(p, [0.0, 0.0, 0.0]) == pytest.approx(holm(p))  # no information: equal
+
+
+# -- the procedure ----------------------------------------------------------------------------
+
+
+def _arx_data(seed, n, *, delay=0, cubic=0.0, noise=0.02):
+    """A 2-input 1-output second-order ARX system with white equation noise."""
+    rng = np.random.default_rng(seed)
+    u = lfilter([1.0], [1.0, -0.8], rng.standard_normal((n, 2)), axis=0)
+    y = np.zeros(n)
+    d = 1 + delay
+    for k in range(max(2, d + 1), n):
+        y[k] = (
+            1.5 * y[k - 1]
+            - 0.7 * y[k - 2]
+            + 0.10 * u[k - d, 0]
+            - 0.05 * u[k - d, 1]
+            - cubic * y[k - 1] ** 3
+            + noise * rng.standard_normal()
+        )
+    exp = Experiment(t=0.01 * np.arange(n), u=u, y=y[:, None], name=f"seed{seed}")
+    return Dataset(inputs=("f1", "f2"), outputs=("pos",), experiments=(exp,), dt=0.01)
+
+
+@pytest.mark.parametrize("seed", [11, 12, 13])
+def test_noise_alone_names_no_cause(seed):
+    train = _arx_data(seed, 3000)
+    valid = _arx_data(seed + 100, 2000)
+    d = diagnose(train, valid, method="arx", options={"na": 2, "nb": 1})
+    assert d.cause == "none", [(f.effect, f.gain, f.p_adjusted) for f in d.findings]
+    assert d.best is None and d.margin is None
+
+
+def test_an_input_delay_is_found_with_a_lean_baseline():
+    train = _arx_data(21, 3000, delay=3)
+    valid = _arx_data(22, 2000, delay=3)
+    d = diagnose(train, valid, method="arx", options={"na": 2, "nb": 1})
+    assert d.cause == "input_delay"
+    assert d.best is not None and d.best.params["samples"] == 3 and d.best.gain > 0
+
+
+def test_a_cubic_stiffness_is_found_and_the_result_follows_the_schema():
+    train = _arx_data(31, 3000, cubic=0.3)
+    valid = _arx_data(32, 2000, cubic=0.3)
+    d = diagnose(train, valid, method="arx", options={"na": 2, "nb": 1})
+    assert d.cause == "nonlinear_stiffness"
+    out = d.to_dict("ext.json")
+    json.dumps(out)  # JSON-ready
+    assert {"method", "fit"} <= set(out["baseline"])
+    assert (
+        out["extended"]["model"] == "ext.json" and out["extended"]["fit"] > out["baseline"]["fit"]
+    )
+    gains = [f["gain"] for f in out["findings"]]
+    assert gains == sorted(gains, reverse=True)  # ranked by validation gain
+    for f in out["findings"]:
+        assert {"cause", "gain", "params", "evidence", "p_value", "p_adjusted", "test"} <= set(f)
+    assert out["named_effect"] == "nonlinear_stiffness"
+    assert out["margin_to_runner_up"] == pytest.approx(d.margin)
+
+
+def test_diagnose_reports_every_problem_at_once():
+    data = _arx_data(1, 300)
+    other = data.select(["f1"], ["pos"])
+    with pytest.raises(OptionError) as err:
+        diagnose(data, other, alpha=0.7, min_relative_gain=1.5, effects=["nope"])
+    text = str(err.value)
+    for needle in ("alpha", "min_relative_gain", "differ in signals", "unknown effects"):
+        assert needle in text
+
+
+# -- an effect plugin: the complete example of docs/diagnose.md ---------------------------------
+
+
+class QuadraticDamping:
+    name = "quadratic_damping"
+    cause = "nonlinear_stiffness"  # closest cause in the closed vocabulary
+    description = "Quadratic (drag) damping: |Δy|·Δy of every output."
+
+    def extend(self, ctx):
+        from tendonkit.augment import extend_with_terms
+        from tendonkit.diagnose import Extension
+        from tendonkit.terms import Factor, Term
+
+        cands = []
+        for span in (1, 3):
+            terms = [
+                Term((Factor(n, fn="abs", lag=1, diff=span), Factor(n, lag=1, diff=span)))
+                for n in ctx.train.outputs
+            ]
+
+            def build(d, terms=terms):
+                return extend_with_terms(ctx.baseline, d, terms, refit=ctx.refit)
+
+            cands.append(({"velocity_span": span}, build))
+        params, model, fit_score, _ = ctx.select(cands)
+        if model is None:
+            return None
+        return Extension(
+            model=model,
+            params=params,
+            description=self.description,
+            train_gain=fit_score - ctx.baseline_score,
+        )
+
+    def signature(self, ctx, baseline, valid, residuals):
+        return {
+            "statistic": "RMS residual after input changes / elsewhere",
+            "value": {
+                c.output: c.ratio
+                for c in residuals.concentration
+                if c.condition == "after input changes"
+            },
+        }
+
+
+@pytest.fixture
+def damping_plugin():
+    import types
+
+    from tendonkit import hookimpl
+    from tendonkit.manager import register, unregister
+
+    plugin = types.SimpleNamespace(
+        tendonkit_register_effects=hookimpl(lambda registry: registry.add(QuadraticDamping()))
+    )
+    name = register(plugin, name="quadratic-damping-test")
+    yield
+    unregister(name)
+
+
+def test_a_registered_effect_plugin_is_tried_like_the_built_ins(damping_plugin):
+    train = _arx_data(41, 1500)
+    valid = _arx_data(42, 1000)
+    d = diagnose(
+        train, valid, method="arx", options={"na": 2, "nb": 1}, effects=["quadratic_damping"]
+    )
+    (finding,) = d.findings
+    assert finding.effect == "quadratic_damping" and finding.params["velocity_span"] in (1, 3)
+    assert "after input changes" in finding.evidence["statistic"]
+    assert d.cause == "none"  # a linear system has no drag to find

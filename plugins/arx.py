@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 from tendonkit.dataset import Dataset
 from tendonkit.errors import OptionError
 from tendonkit.hookspecs import hookimpl
-from tendonkit.identification import build_model, require_samples
+from tendonkit.identification import build_model, one_blas_thread, require_samples
 from tendonkit.schema import ARX as ARXRep
 from tendonkit.schema import Model
 
@@ -102,6 +102,11 @@ class ARX:
             raise DataError(
                 f"Too few samples for arx: {rows} regression rows for {n_par} parameters per output."
             )
+        with one_blas_thread():
+            return self._fit(dataset, nb, nk, lag)
+
+    def _fit(self, dataset: Dataset, nb: list[int], nk: list[int], lag: int) -> Model:
+        nu, ny = dataset.nu, dataset.ny
         Phi = np.vstack(
             [_regressors(e.u, e.y, self.na, nb, nk, lag, self.offset) for e in dataset.experiments]
         )

@@ -43,7 +43,6 @@ Linear Systems*, Kluwer, 1996.
 
 from __future__ import annotations
 
-import contextlib
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -53,7 +52,7 @@ from numpy.typing import NDArray
 from tendonkit.dataset import Dataset
 from tendonkit.errors import DataError, OptionError
 from tendonkit.hookspecs import hookimpl
-from tendonkit.identification import build_model, require_samples
+from tendonkit.identification import build_model, one_blas_thread, require_samples
 from tendonkit.plugins import _subspace as sub
 from tendonkit.schema import Model, StateSpace
 
@@ -137,7 +136,7 @@ class N4SID:
 
     def identify(self, dataset: Dataset) -> Model:
         """Identify a state-space model from ``dataset`` (all experiments)."""
-        with _one_blas_thread():
+        with one_blas_thread():
             return self._identify(dataset)
 
     def _identify(self, dataset: Dataset) -> Model:
@@ -196,20 +195,6 @@ class N4SID:
         notes.append("singular values " + " ".join(f"{v:.4g}" for v in sv[: min(len(sv), n + 4)]))
         rep = StateSpace(A=A, B=B, C=C, D=D, x0=x0, K=K)
         return build_model(self, dataset, rep, notes="; ".join(notes))
-
-
-def _one_blas_thread() -> contextlib.AbstractContextManager[object]:
-    """Run BLAS on one thread (via threadpoolctl, when installed).
-
-    Every matrix here is small (at most ``2i(nu+ny)`` columns), so a second BLAS thread gains
-    little, and on a busy two-core machine waiting for it made identification 5–10 times
-    slower (measured: 0.41 s with one thread, 2.1 s with two at 200 000 samples under load).
-    """
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # pragma: no cover - threadpoolctl comes with scikit-learn (pysindy)
-        return contextlib.nullcontext()
-    return threadpool_limits(limits=1, user_api="blas")
 
 
 def _gram(

@@ -6,6 +6,7 @@ function of its arguments; the plant holds the state.
 
 from __future__ import annotations
 
+import math
 from functools import lru_cache
 
 import numpy as np
@@ -85,6 +86,22 @@ def tendon_length_change(q: np.ndarray, robot: RobotParameters) -> np.ndarray:
     half = 0.5 * np.asarray(q, dtype=float)[..., None, :]
     per_gap = 2.0 * (robot.a * (1.0 - np.cos(half)) - robot.d * np.sin(half))
     return per_gap.sum(axis=-1)
+
+
+def length_change_scalar(
+    q: list[float], a_rows: list[list[float]], d_rows: list[list[float]]
+) -> list[float]:
+    """:func:`tendon_length_change` for one joint vector on plain floats (same arithmetic).
+
+    ``a_rows`` and ``d_rows`` are ``robot.a`` and ``robot.d`` as nested lists (4 × 6).
+    """
+    halves = [0.5 * v for v in q]
+    versines = [1.0 - math.cos(h) for h in halves]
+    sines = [math.sin(h) for h in halves]
+    return [
+        sum([2.0 * (a * c - d * s) for a, d, c, s in zip(ak, dk, versines, sines, strict=True)])
+        for ak, dk in zip(a_rows, d_rows, strict=True)
+    ]
 
 
 def coupling_stiffness(k_t: float, robot: RobotParameters) -> np.ndarray:
@@ -170,6 +187,46 @@ def table_index(total_tension: np.ndarray | float) -> np.ndarray:
 def softplus_deadzone(tension: np.ndarray, threshold: float, width: float) -> np.ndarray:
     """Effect Z: ``T_eff = w ln(1 + exp((T − T_dz)/w))`` (overflow-safe)."""
     return width * np.logaddexp(0.0, (tension - threshold) / width)
+
+
+def softplus_scalar(tension: float, threshold: float, width: float) -> float:
+    """:func:`softplus_deadzone` for one tension on plain floats (same arithmetic)."""
+    x = (tension - threshold) / width
+    return width * (x + math.log1p(math.exp(-x)) if x > 0 else math.log1p(math.exp(x)))
+
+
+def biquad_step(
+    x: list[float], state: list[list[float]], coefficients: tuple[float, ...]
+) -> tuple[list[float], list[list[float]]]:
+    """One sample of a 2nd-order filter on each channel, as ``scipy.signal.lfilter`` does it.
+
+    Transposed direct form II, operation for operation like scipy's C loop, so a filter run
+    sample by sample through this function equals ``lfilter`` on the whole record.
+
+    Parameters
+    ----------
+    x : list of float
+        One input sample per channel.
+    state : list of 2 lists of float
+        ``zi`` of ``lfilter`` (2 × channels).
+    coefficients : tuple of 5 float
+        ``(b0, b1, b2, a1, a2)`` normalised so that ``a0 = 1``.
+
+    Returns
+    -------
+    y : list of float
+        The filtered sample.
+    state : list of 2 lists of float
+        The new filter state.
+    """
+    b0, b1, b2, a1, a2 = coefficients
+    z0, z1 = state
+    y = [s + b0 * v for s, v in zip(z0, x, strict=True)]
+    new = [
+        [s + v * b1 - w * a1 for s, v, w in zip(z1, x, y, strict=True)],
+        [v * b2 - w * a2 for v, w in zip(x, y, strict=True)],
+    ]
+    return y, new
 
 
 def friction_pass(

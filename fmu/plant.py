@@ -21,6 +21,8 @@ command issued at ``t_k`` and the sensors read at ``t_k``).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 import scipy.signal
@@ -36,10 +38,13 @@ from tendonkit.fmu._config import (
 from tendonkit.fmu._effects import (
     S_MAX,
     S_MIN,
+    biquad_step,
     friction_pass,
     gravity_vector,
+    length_change_scalar,
     play,
     softplus_deadzone,
+    softplus_scalar,
     step_table,
     table_index,
     tendon_length_change,
@@ -47,7 +52,7 @@ from tendonkit.fmu._effects import (
 )
 from tendonkit.fmu._effects import coupling_stiffness as _coupling_stiffness
 from tendonkit.fmu._effects import gravity_linearisation as _gravity_linearisation
-from tendonkit.kinematics import forward_kinematics
+from tendonkit.kinematics import forward_kinematics, scalar_forward_kinematics
 from tendonkit.robot import N_JOINTS, N_TENDONS, RobotParameters
 
 __all__ = [
@@ -78,6 +83,10 @@ OUTPUT_SIZES: dict[str, int] = {
     "T_applied": 4,
     "T_gap": 24,
 }
+
+#: Rows of sensor noise drawn at once for the per-frame path (the stream is the same as
+#: drawing them one frame at a time).
+_NOISE_BLOCK = 64
 
 
 def linearise(
@@ -128,12 +137,6 @@ def linearise(
     b = np.zeros((2 * N_JOINTS, N_TENDONS))
     b[N_JOINTS:] = m_inv @ robot.d.T
     return a, b
-
-
-def _softplus(tension: float, threshold: float, width: float) -> float:
-    """Scalar :func:`softplus_deadzone` for the frame loop."""
-    x = (tension - threshold) / width
-    return width * (x + math.log1p(math.exp(-x)) if x > 0 else math.log1p(math.exp(x)))
 
 
 class Plant:
@@ -193,6 +196,17 @@ class Plant:
         self._l0 = 2.0 * rob.a.sum(axis=1)  # ΔL = l0 − [2d | 2a] @ [sin; cos]
         self._adl = 2.0 * np.hstack([rob.d, rob.a])
         self._k_nom = rob.stiffness()
+        if cfg.forcelag_on:  # force loop (effect F): gain, step limit and tendon springs
+            k_t = cfg.forcelag_kt
+            self._gain = (1.0 - math.exp(-self.h / cfg.forcelag_tau)) / k_t
+            self._v_h = cfg.forcelag_vmax * self.h
+            self._k_l0, self._k_adl = k_t * self._l0, k_t * self._adl
+        if self._extra:  # stiffness effects (K)
+            self._k3 = cfg.hardening_k3 * self._k_nom
+            self._soft = cfg.softening_s * self._k_nom
+        if cfg.friction_on:  # capstan exponents μ (β0 + |q̂_{i−1}|/2 + |q̂_i|/2) of effect A
+            self._mus = np.array([[cfg.friction_mu_k], [cfg.friction_mu_s]])
+            self._wraps = np.zeros(N_JOINTS + 1)  # [0, |q̂/2|]
         delay = cfg.delay_s if cfg.delay_on else 0.0
         frames = delay / self.h
         self._n_delay = math.floor(frames + 1e-9)
@@ -200,9 +214,17 @@ class Plant:
         self._alpha = alpha if alpha > 1e-9 else 0.0
         if cfg.camera_on:
             self._filter = scipy.signal.butter(2, cfg.camera_fc, fs=1.0 / self.sensor_period)
+            b, a = self._filter  # normalised by a[0] as scipy.signal.lfilter does
+            self._biquad = tuple(float(v) for v in (*(b / a[0]), *(a[1:] / a[0])))
         self._sigma = np.array(
             [cfg.noise_sigma_q] * 6 + [cfg.noise_sigma_p] * 3 + [cfg.noise_sigma_T] * 4
         )
+        # Per-frame path (step, FMU): plain floats around three numpy calls per frame.  It
+        # needs a sensor sample at every frame end; otherwise step() goes through run().
+        self._fk = scalar_forward_kinematics(rob)
+        self._lean = self.h >= self.sensor_period
+        self._a_rows, self._d_rows = rob.a.tolist(), rob.d.tolist()
+        self._top = int(S_MAX - S_MIN)  # last table index
         self.reset()
 
     # ------------------------------------------------------------------ state handling
@@ -221,37 +243,43 @@ class Plant:
         """
         rob, cfg = self.robot, self.config
         P = rob.P_nom
+        nj = N_JOINTS
         self._frame = 0
         self._rng = np.random.default_rng(cfg.seed if seed is None else seed)
-        self._out = np.zeros(4 * N_JOINTS)
-        self._out[3 * N_JOINTS :] = 0.5 * np.pi
-        self._hold = np.full(N_TENDONS, P)
+        self._noise_rows: list[list[float]] = []  # drawn, not yet used; the next one is last
+        # The table's input vector z of the current frame (spec §9): [x, q̂/2, q̂/2 + π/2,
+        # τ_x, 1]; its first 24 entries are the state, the rest is rewritten every frame.
+        self._z = np.zeros(self._mats.shape[2])
+        self._z[3 * nj : 4 * nj] = 0.5 * np.pi
+        self._z[-1] = 1.0
+        self._z_new = np.empty(4 * nj)
+        self._hold = [P] * N_TENDONS
         t_eff = self._dead_zone(np.full(N_TENDONS, P))
-        self._gaps = [[float(t)] * N_JOINTS for t in t_eff]
-        self._stick = [[True] * N_JOINTS for _ in range(N_TENDONS)]
-        self._hist = np.full((self._n_delay + 1, N_TENDONS), P)
-        self._q_vis = np.zeros(N_JOINTS)
-        self._zi: np.ndarray | None = None
+        self._gaps = [[float(t)] * nj for t in t_eff]
+        self._stick = [[True] * nj for _ in range(N_TENDONS)]
+        self._hist = [[P] * N_TENDONS for _ in range(self._n_delay + 1)]
+        self._q_vis = [0.0] * nj
+        self._zi: list[list[float]] = []  # camera filter state (set from the first sample)
         if cfg.settle_s > 0:
             n = round(cfg.settle_s / self.h)
             self._mechanics(np.full((n, N_TENDONS), P))
             self._frame = 0
-        current = self._truth_now()
-        self._last = self._sensors(current)
+        first = self._sensors(self._truth_now())
+        self._last = {k: v[0].tolist() for k, v in first.items()}
         return self.outputs()
 
     def _truth_now(self) -> dict[str, np.ndarray]:
         """Truth channels of the current state as one-row arrays."""
-        q = self._out[None, :N_JOINTS].copy()
+        q = self._z[None, :N_JOINTS].copy()
         if self.config.forcelag_on:
             k_t = self.config.forcelag_kt
-            t_now = self._hold + k_t * tendon_length_change(q[0], self.robot)
+            t_now = np.array(self._hold) + k_t * tendon_length_change(q[0], self.robot)
         else:
-            t_now = self._hist[-1].clip(self.robot.T_min, self.robot.T_max)
+            t_now = np.array(self._hist[-1]).clip(self.robot.T_min, self.robot.T_max)
         return {
             "q_true": q,
-            "qd_true": self._out[None, N_JOINTS : 2 * N_JOINTS].copy(),
-            "q_vis": self._q_vis[None, :].copy(),
+            "qd_true": self._z[None, N_JOINTS : 2 * N_JOINTS].copy(),
+            "q_vis": np.array([self._q_vis]),
             "T_applied": t_now[None, :].copy(),
             "T_meas": t_now[None, :].copy(),
             "T_gap": np.array(self._gaps).reshape(1, -1),
@@ -265,7 +293,7 @@ class Plant:
         dict
             1-D copies keyed as :data:`OUTPUT_SIZES`.
         """
-        return {k: v[0].copy() for k, v in self._last.items()}
+        return {k: np.array(v) for k, v in self._last.items()}
 
     @property
     def time(self) -> float:
@@ -281,19 +309,22 @@ class Plant:
         ``time``.
         """
         return {
-            "q": self._out[:N_JOINTS].copy(),
-            "qd": self._out[N_JOINTS : 2 * N_JOINTS].copy(),
-            "T_hold": self._hold.copy(),
-            "T_gap": self._last["T_gap"].reshape(N_TENDONS, N_JOINTS).copy(),
+            "q": self._z[:N_JOINTS].copy(),
+            "qd": self._z[N_JOINTS : 2 * N_JOINTS].copy(),
+            "T_hold": np.array(self._hold),
+            "T_gap": np.array(self._last["T_gap"]).reshape(N_TENDONS, N_JOINTS),
             "stick": np.array(self._stick),
-            "q_vis": self._q_vis.copy(),
-            "u_hist": self._hist.copy(),
+            "q_vis": np.array(self._q_vis),
+            "u_hist": np.array(self._hist),
             "time": np.array(self.time),
         }
 
     # ------------------------------------------------------------------ public stepping
-    def step(self, T_cmd: np.ndarray | list[float]) -> dict[str, np.ndarray]:
+    def step(self, T_cmd: np.ndarray | Sequence[float]) -> dict[str, np.ndarray]:
         """Advance one frame with commanded tensions ``T_cmd`` held over the frame.
+
+        Gives exactly what one row of :meth:`run` gives (to the rounding of batched products,
+        ~1e-15), on a per-frame path that avoids numpy's per-call overhead where it can.
 
         Parameters
         ----------
@@ -303,11 +334,12 @@ class Plant:
         Returns
         -------
         dict
-            Outputs at the end of the frame (see :data:`OUTPUT_SIZES`), 1-D copies.
+            Outputs at the end of the frame (see :data:`OUTPUT_SIZES`), 1-D copies, and
+            ``"t"``, the time at the end of the frame.
         """
-        u = self._check_inputs(np.asarray(T_cmd, dtype=float).reshape(1, -1))
-        res = self.run(u)
-        return {k: v[0] for k, v in res.items()}
+        out: dict[str, Any] = {k: np.array(v) for k, v in self._advance(T_cmd).items()}
+        out["t"] = np.float64(self.h * self._frame)
+        return out
 
     def run(self, u: np.ndarray) -> dict[str, np.ndarray]:
         """Advance ``len(u)`` frames, continuing from the current state.
@@ -334,7 +366,7 @@ class Plant:
         raw = self._mechanics(self._delayed(u))
         out = self._sensors(raw, k0)
         out["t"] = self.h * np.arange(k0 + 1, k0 + u.shape[0] + 1)
-        self._last = {k: v[-1:].copy() for k, v in out.items() if k != "t"}
+        self._last = {k: v[-1].tolist() for k, v in out.items() if k != "t"}
         return out
 
     def record(self, u: np.ndarray) -> dict[str, np.ndarray]:
@@ -370,6 +402,172 @@ class Plant:
                 log[key] = np.concatenate([before[key][None, :], values[:-1]], axis=0)
         return log
 
+    # ------------------------------------------------------------------ one frame
+    def _advance(self, T_cmd: np.ndarray | Sequence[float]) -> dict[str, list[float]]:
+        """Advance one frame; return the outputs as lists (internal: never modify them).
+
+        The per-frame path of :meth:`step` and of the plant FMU's ``doStep``.  It does what
+        one row of :meth:`run` does (spec §13 steps 1–10), operation for operation, but on
+        plain floats: numpy only for the half-angle sines, the tension products, the table
+        step (and the effects' own small vector operations), so a frame costs a handful of
+        numpy calls instead of a run's set-up.  When the sensors do not sample at every frame
+        end (``h < sensor_period``) it falls back to :meth:`run`.
+        """
+        cmd = self._command(T_cmd)
+        if not self._lean:
+            self.run(np.array([cmd]))
+            return self._last
+        cfg, nj = self.config, N_JOINTS
+        # Steps 1–2: delay FIFO (a fractional delay blends two frames), saturation.
+        if self._n_delay or self._alpha:
+            ext = [*self._hist, cmd]
+            applied = ext[1]
+            if self._alpha:
+                alpha = self._alpha
+                applied = [(1.0 - alpha) * c + alpha * p for c, p in zip(applied, ext[0])]
+            self._hist = ext[1:]
+        else:
+            applied = cmd
+            self._hist = [cmd]
+        lo, hi = self.robot.T_min, self.robot.T_max
+        tc = [lo if t < lo else (hi if t > hi else t) for t in applied]
+        # Steps 3–9: force loop, dead zone, friction, table index, remainder, state update.
+        z, sc = self._z, self._z[2 * nj : 4 * nj]
+        if cfg.friction_on or self._extra:
+            q_half = self._z[2 * nj : 3 * nj]  # q̂/2, before the in-place sin
+            if cfg.friction_on:
+                e_kin, e_stat = self._capstan(q_half)
+            if self._extra:
+                self._extra_torque(q_half, self._z[4 * nj : 5 * nj])
+        np.sin(sc, out=sc)  # [sin(q̂/2), cos(q̂/2)]
+        if cfg.forcelag_on:
+            hold = self._hold
+            t_app = self._force_loop(tc, (self._k_l0 - self._k_adl @ sc).tolist(), hold)
+        else:
+            t_app = tc
+        if cfg.deadzone_on:
+            t_eff = [softplus_scalar(t, cfg.deadzone_T, cfg.deadzone_w) for t in t_app]
+        else:
+            t_eff = t_app
+        idx = min(max(round(sum(t_eff) - S_MIN), 0), self._top)
+        if cfg.friction_on:
+            gaps = self._gaps
+            friction_pass(t_eff, gaps, self._stick, e_kin, e_stat)
+            t_gap = gaps[0] + gaps[1] + gaps[2] + gaps[3]
+            w = (np.array([row + row for row in gaps]) * self._adn).sum(axis=0)
+        else:
+            t_gap = [t for t in t_eff for _ in range(nj)]
+            w = np.dot(t_eff, self._adn)
+        np.multiply(sc, w, out=sc)
+        np.matmul(self._mats[idx], z, out=self._z_new)
+        z[: 4 * nj] = self._z_new
+        x = self._z_new[: 2 * nj].tolist()
+        q_true, qd_true = x[:nj], x[nj:]
+        # Step 10: kinematics, backlash, camera filter, noise.
+        ee_true = self._fk(q_true)
+        if cfg.backlash_on:
+            b = cfg.backlash_b
+            q_vis = [min(max(v, q - b), q + b) for v, q in zip(self._q_vis, q_true)]
+            meas = q_vis + self._fk(q_vis)
+        else:
+            q_vis = q_true
+            meas = q_true + ee_true
+        if cfg.forcelag_on:
+            k_t = cfg.forcelag_kt
+            change = length_change_scalar(q_true, self._a_rows, self._d_rows)
+            t_meas = [t + k_t * d for t, d in zip(hold, change)]
+        else:
+            t_meas = tc
+        if cfg.camera_on:
+            meas, self._zi = biquad_step(meas, self._zi, self._biquad)
+        if cfg.noise_on:
+            noise = self._noise_row()
+            meas = [m + e for m, e in zip(meas, noise)]
+            t_meas = [t + e for t, e in zip(t_meas, noise[9:])]
+            quantum = cfg.noise_quantum_T
+            if quantum > 0:
+                t_meas = [round(t / quantum) * quantum for t in t_meas]
+        self._q_vis = q_vis
+        self._frame += 1
+        self._last = {
+            "q": meas[:nj],
+            "ee": meas[nj:],
+            "T_meas": t_meas,
+            "q_true": q_true,
+            "qd_true": qd_true,
+            "ee_true": ee_true,
+            "q_vis": q_vis,
+            "T_applied": t_app,
+            "T_gap": t_gap,
+        }
+        return self._last
+
+    def _command(self, T_cmd: np.ndarray | Sequence[float]) -> list[float]:
+        """One frame's commanded tensions as 4 finite floats (else the error of ``run``)."""
+        values = T_cmd.tolist() if isinstance(T_cmd, np.ndarray) else T_cmd
+        if isinstance(values, list | tuple) and len(values) == N_TENDONS:
+            try:
+                cmd = [float(v) for v in values]
+            except (TypeError, ValueError):
+                pass
+            else:
+                if math.isfinite(sum(cmd)):
+                    return cmd
+        u = self._check_inputs(np.asarray(T_cmd, dtype=float).reshape(1, -1))
+        return list(u[0].tolist())
+
+    def _force_loop(self, cmd: list[float], dl: list[float], hold: list[float]) -> list[float]:
+        """Effect F for one frame: move the carriages (``hold``, in place); return T_applied.
+
+        ``dl`` is the tendon-spring term ``k_t (L(q̂) − L(0))`` at the frame's evaluation point.
+        """
+        gain, v_h, k_t = self._gain, self._v_h, self.config.forcelag_kt
+        t_app = [0.0] * N_TENDONS
+        for j in range(N_TENDONS):
+            move = (cmd[j] - hold[j] - dl[j]) * gain
+            move = v_h if move > v_h else (-v_h if move < -v_h else move)
+            hold[j] += k_t * move
+            t_app[j] = hold[j] + dl[j]
+        return t_app
+
+    def _capstan(self, q_half: np.ndarray) -> list[list[float]]:
+        """Effect A: ``[exp(μ_k w_j), exp(μ_s w_j)]`` for the wraps at the half angles q̂/2."""
+        wraps = self._wraps
+        np.abs(q_half, out=wraps[1:])
+        beta0 = self.config.friction_beta0
+        e: list[list[float]] = np.exp(self._mus * (beta0 + (wraps[:-1] + wraps[1:]))).tolist()
+        return e
+
+    def _extra_torque(self, q_half: np.ndarray, tau: np.ndarray) -> None:
+        """Effect K: write the held stiffness torque τ_x(q̂) into ``tau``."""
+        cfg = self.config
+        q = 2.0 * q_half
+        tau[:] = 0.0
+        if cfg.hardening_on:
+            tau -= self._k3 * q**3
+        if cfg.softening_on:
+            q_s = cfg.softening_qs
+            tau += self._soft * (q - q_s * np.tanh(q / q_s))
+
+    def _noise_row(self) -> list[float]:
+        """The next row of scaled sensor noise; rows are drawn in blocks of :data:`_NOISE_BLOCK`."""
+        rows = self._noise_rows
+        if not rows:
+            rows[:] = (self._rng.standard_normal((_NOISE_BLOCK, 13)) * self._sigma).tolist()
+            rows.reverse()
+        return rows.pop()
+
+    def _noise(self, n: int) -> np.ndarray:
+        """The next ``n`` rows of scaled sensor noise, ``(n, 13)``: the same stream as rows."""
+        rows = self._noise_rows
+        take = min(n, len(rows))
+        cached = rows[len(rows) - take :][::-1]
+        del rows[len(rows) - take :]
+        fresh = self._rng.standard_normal((n - take, 13)) * self._sigma
+        if not take:
+            return fresh
+        return np.concatenate([np.array(cached).reshape(take, 13), fresh])
+
     # ------------------------------------------------------------------ internals
     def _check_inputs(self, u: np.ndarray) -> np.ndarray:
         if u.ndim != 2 or u.shape[1] != N_TENDONS:
@@ -389,7 +587,7 @@ class Plant:
         """Steps 1–2: frame FIFO with fractional delay, then saturation."""
         if self._n_delay or self._alpha:
             width = self._n_delay + 1
-            ext = np.concatenate([self._hist, u], axis=0)
+            ext = np.concatenate([np.array(self._hist), u], axis=0)
             n = u.shape[0]
             cur = ext[width - self._n_delay : width - self._n_delay + n]
             applied = (
@@ -399,10 +597,10 @@ class Plant:
                     (1.0 - self._alpha) * cur + self._alpha * ext[width - self._n_delay - 1 :][:n]
                 )
             )
-            self._hist = ext[-width:].copy()
+            self._hist = ext[-width:].tolist()
         else:
             applied = u
-            self._hist = u[-1:].copy()
+            self._hist = u[-1:].tolist()
         return np.clip(applied, self.robot.T_min, self.robot.T_max)
 
     def _mechanics(self, tc: np.ndarray) -> dict[str, np.ndarray]:
@@ -417,18 +615,16 @@ class Plant:
         mats = self._mats
         zs = np.zeros((n + 1, mats.shape[2]))
         zs[:, -1] = 1.0
-        zs[0, : 4 * nj] = self._out
+        zs[0, : 4 * nj] = self._z[: 4 * nj]
         heads = zs[:, : 4 * nj]  # where the table writes
         prods = zs[:, 2 * nj : 4 * nj]  # half angles -> sin/cos -> products with tensions
         force, fric, extra = cfg.forcelag_on, cfg.friction_on, self._extra
         dead = cfg.deadzone_on
-        top = int(S_MAX - S_MIN)
+        top = self._top
         if force:
             k_t = cfg.forcelag_kt
-            gain = (1.0 - math.exp(-self.h / cfg.forcelag_tau)) / k_t
-            v_h = cfg.forcelag_vmax * self.h
-            k_l0, k_adl = k_t * self._l0, k_t * self._adl
-            hold = self._hold.tolist()
+            k_l0, k_adl = self._k_l0, self._k_adl
+            hold = self._hold
             t_cmd = tc.tolist()
             t_app_l, hold_l = [], []
             dz_t, dz_w = cfg.deadzone_T, cfg.deadzone_w
@@ -438,45 +634,25 @@ class Plant:
             if not fric:
                 w_all = t_eff_all @ self._adn
         if fric:
-            mus = np.array([[cfg.friction_mu_k], [cfg.friction_mu_s]])
-            beta0 = cfg.friction_beta0
             gaps, stick = self._gaps, self._stick
             gap_hist = []
-            qa = np.zeros(nj + 1)
-            qa_tail = qa[1:]
             adn = self._adn
         if extra:
-            k3 = cfg.hardening_k3 * self._k_nom if cfg.hardening_on else None
-            soft = cfg.softening_s * self._k_nom if cfg.softening_on else None
-            q_s = cfg.softening_qs
             taus = zs[:, 4 * nj : 5 * nj]
         for k in range(n):
             sc = prods[k]
             if fric or extra:
                 q_half = zs[k, 2 * nj : 3 * nj]  # q̂/2, before the in-place sin
                 if fric:
-                    np.abs(q_half, out=qa_tail)
-                    e = np.exp(mus * (beta0 + (qa[:-1] + qa_tail))).tolist()
+                    e = self._capstan(q_half)
                 if extra:
-                    q = 2.0 * q_half
-                    tau = taus[k]
-                    if k3 is not None:
-                        tau -= k3 * q**3
-                    if soft is not None:
-                        tau += soft * (q - q_s * np.tanh(q / q_s))
+                    self._extra_torque(q_half, taus[k])
             np.sin(sc, out=sc)  # [sin(q̂/2), cos(q̂/2)]
             if force:
-                dl = (k_l0 - k_adl @ sc).tolist()
-                cmd = t_cmd[k]
-                ta = [0.0] * 4
-                for j in range(4):
-                    move = (cmd[j] - hold[j] - dl[j]) * gain
-                    move = v_h if move > v_h else (-v_h if move < -v_h else move)
-                    hold[j] += k_t * move
-                    ta[j] = hold[j] + dl[j]
+                ta = self._force_loop(t_cmd[k], (k_l0 - k_adl @ sc).tolist(), hold)
                 hold_l.append(hold[:])
                 t_app_l.append(ta)
-                te = [_softplus(t, dz_t, dz_w) for t in ta] if dead else ta
+                te = [softplus_scalar(t, dz_t, dz_w) for t in ta] if dead else ta
                 idx = min(max(round(sum(te) - S_MIN), 0), top)
             else:
                 idx = idx_all[k]
@@ -493,11 +669,10 @@ class Plant:
                 w = w_all[k]
             np.multiply(sc, w, out=sc)
             np.matmul(mats[idx], zs[k], out=heads[k + 1])
-        self._out = zs[n, : 4 * nj].copy()
+        self._z[: 4 * nj] = zs[n, : 4 * nj]
         hist = zs[1:, : 2 * nj]
         q_true = hist[:, :nj]
         if force:
-            self._hold = np.array(hold)
             t_app = np.array(t_app_l).reshape(n, N_TENDONS)
             t_meas = np.array(hold_l).reshape(n, N_TENDONS) + k_t * tendon_length_change(
                 q_true, rob
@@ -510,11 +685,11 @@ class Plant:
         else:
             t_gap = np.repeat(self._dead_zone(t_app), nj, axis=1)
         if cfg.backlash_on:
-            q_vis = play(q_true, self._q_vis, cfg.backlash_b)
+            q_vis = play(q_true, np.array(self._q_vis), cfg.backlash_b)
         else:
             q_vis = q_true
         if n:
-            self._q_vis = q_vis[-1].copy()
+            self._q_vis = q_vis[-1].tolist()
         self._frame += n
         return {
             "q_true": q_true,
@@ -549,20 +724,21 @@ class Plant:
         if cfg.camera_on and meas.shape[0]:
             b, a = self._filter
             if k0 is None:  # the filter starts in steady state at the initial value
-                self._zi = scipy.signal.lfilter_zi(b, a)[:, None] * meas[0][None, :]
+                zi = scipy.signal.lfilter_zi(b, a)[:, None] * meas[0][None, :]
             else:
-                meas, self._zi = scipy.signal.lfilter(b, a, meas, axis=0, zi=self._zi)
+                meas, zi = scipy.signal.lfilter(b, a, meas, axis=0, zi=np.array(self._zi))
+            self._zi = zi.tolist()
         if cfg.noise_on and meas.shape[0]:
-            noise = self._rng.standard_normal((meas.shape[0], 13)) * self._sigma
+            noise = self._noise(meas.shape[0])
             meas = meas + noise[:, :9]
             t_meas = t_meas + noise[:, 9:]
             if cfg.noise_quantum_T > 0:
                 t_meas = np.round(t_meas / cfg.noise_quantum_T) * cfg.noise_quantum_T
         if held:  # hold the previous sample between sensor instants
             last = self._last
-            prev = np.concatenate([last["q"], last["ee"]], axis=1)
+            prev = np.array([last["q"] + last["ee"]])
             meas = np.concatenate([prev, meas])[np.cumsum(mask)]
-            t_meas = np.concatenate([last["T_meas"], t_meas])[np.cumsum(mask)]
+            t_meas = np.concatenate([np.array([last["T_meas"]]), t_meas])[np.cumsum(mask)]
         return {
             "q": np.array(meas[:, :N_JOINTS]),
             "ee": np.array(meas[:, N_JOINTS:]),

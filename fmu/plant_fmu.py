@@ -294,12 +294,14 @@ class TendonPlant(Fmi2Slave):
             )
             return False
         try:
-            # Plant.run on one row is Plant.step without its per-call dictionary of copies.
-            out = plant.run(np.array([self._io[: self._n_in]]))
+            # The plant's per-frame path: Plant.step without its dictionary of array copies.
+            out = plant._advance(self._io[: self._n_in])
         except Exception as exc:  # never let an exception reach pythonfmu (see module docs)
             self.log(f"step at t = {current_time:g} s failed: {exc}", Fmi2Status.error)
             return False
-        self._io[self._n_in :] = _pack(out)
+        self._io[self._n_in :] = (
+            out["q"] + out["ee"] + out["T_meas"] + out["q_true"] + out["ee_true"]
+        )
         return True
 
     # ------------------------------------------------------------------ helpers

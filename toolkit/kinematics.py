@@ -17,7 +17,7 @@ and ``T_EE(q) = A_1 Tz(ℓ) A_2 Tz(ℓ) … A_6 Tz(ℓ) Tz(ℓ_tool)``.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -37,6 +37,7 @@ __all__ = [
     "link_jacobians",
     "mass_matrix",
     "ratio_matrix",
+    "scalar_forward_kinematics",
     "static_tension_difference",
 ]
 
@@ -192,7 +193,8 @@ def forward_kinematics(q: np.ndarray, robot: RobotParameters | None = None) -> n
     qb, single = _as_batch(q, N_JOINTS, "q")
     n = qb.shape[0]
     if n <= _SCALAR_FK_MAX:  # per-step use (plant FMU): plain floats beat tiny arrays
-        ee = np.array([_fk_scalar(row, robot) for row in qb.tolist()]).reshape(n, 3)
+        fk = scalar_forward_kinematics(robot)
+        ee = np.array([fk(row) for row in qb.tolist()]).reshape(n, 3)
         return ee[0] if single else ee
     # Columns of the current link orientation, each (n, 3); rotating about one axis only mixes
     # two columns, which keeps this far cheaper than stacked 3x3 products.
@@ -218,23 +220,66 @@ def forward_kinematics(q: np.ndarray, robot: RobotParameters | None = None) -> n
 _SCALAR_FK_MAX = 4
 
 
-def _fk_scalar(q: list[float], robot: RobotParameters) -> list[float]:
-    """Scalar version of :func:`forward_kinematics` for one joint vector."""
-    cols = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
-    pos = [0.0, 0.0, 0.0]
-    radii = robot.R.tolist()
-    ell = robot.link_pitch
-    for i, qi in enumerate(q):
-        s, c = math.sin(qi), math.cos(qi)
-        bend = radii[i] * (2 * math.sin(0.5 * qi) - s)
-        lift = radii[i] * (2 * math.cos(0.5 * qi) - 1 - c)
-        b = 0 if i in PAN_JOINTS else 1
-        cb, cz = cols[b], cols[2]
-        new_b = [c * x - s * z for x, z in zip(cb, cz)]
-        new_z = [s * x + c * z for x, z in zip(cb, cz)]
-        pos = [p + bend * x + lift * z + ell * nz for p, x, z, nz in zip(pos, cb, cz, new_z)]
-        cols[b], cols[2] = new_b, new_z
-    return [p + robot.tool_offset * z for p, z in zip(pos, cols[2])]
+def scalar_forward_kinematics(
+    robot: RobotParameters | None = None,
+) -> Callable[[Sequence[float]], list[float]]:
+    """Return a fast end-effector function for one joint vector, on plain Python floats.
+
+    The returned function computes exactly what :func:`forward_kinematics` computes for one
+    sample (the same floating-point operations in the same order), without numpy: about four
+    times faster than a numpy call for a single joint vector, which is what a per-frame
+    simulation step needs.  The geometry of ``robot`` is fixed when the function is made.
+
+    Parameters
+    ----------
+    robot : RobotParameters, optional
+        Geometry; the nominal robot by default.
+
+    Returns
+    -------
+    callable
+        ``fk(q) -> [x, y, z]``: joint angles (6 floats, rad) to the end-effector position in
+        the base frame, m.
+
+    Examples
+    --------
+    >>> fk = scalar_forward_kinematics()
+    >>> [round(v * 1e3, 1) for v in fk([0.2, 0.0, 0.0, 0.0, 0.0, 0.0])]
+    [51.7, 0.0, 255.1]
+    """
+    robot = _robot(robot)
+    # Per joint: contact radius and whether it bends toward the link's x (pan) or y (tilt) axis.
+    joints = tuple((float(r), i in PAN_JOINTS) for i, r in enumerate(robot.R.tolist()))
+    ell, tool = float(robot.link_pitch), float(robot.tool_offset)
+    sin, cos = math.sin, math.cos
+
+    def fk(q: Sequence[float]) -> list[float]:
+        # Columns x, y, z of the current link orientation and the contact point p; a rotation
+        # about one joint axis mixes only the bending column with the z column.
+        x0, x1, x2 = 1.0, 0.0, 0.0
+        y0, y1, y2 = 0.0, 1.0, 0.0
+        z0, z1, z2 = 0.0, 0.0, 1.0
+        p0 = p1 = p2 = 0.0
+        for (radius, pan), qi in zip(joints, q, strict=True):
+            s, c = sin(qi), cos(qi)
+            bend = radius * (2 * sin(0.5 * qi) - s)
+            lift = radius * (2 * cos(0.5 * qi) - 1 - c)
+            if pan:
+                n0, n1, n2 = s * x0 + c * z0, s * x1 + c * z1, s * x2 + c * z2
+                p0 = p0 + bend * x0 + lift * z0 + ell * n0
+                p1 = p1 + bend * x1 + lift * z1 + ell * n1
+                p2 = p2 + bend * x2 + lift * z2 + ell * n2
+                x0, x1, x2 = c * x0 - s * z0, c * x1 - s * z1, c * x2 - s * z2
+            else:
+                n0, n1, n2 = s * y0 + c * z0, s * y1 + c * z1, s * y2 + c * z2
+                p0 = p0 + bend * y0 + lift * z0 + ell * n0
+                p1 = p1 + bend * y1 + lift * z1 + ell * n1
+                p2 = p2 + bend * y2 + lift * z2 + ell * n2
+                y0, y1, y2 = c * y0 - s * z0, c * y1 - s * z1, c * y2 - s * z2
+            z0, z1, z2 = n0, n1, n2
+        return [p0 + tool * z0, p1 + tool * z1, p2 + tool * z2]
+
+    return fk
 
 
 def _point_jacobian(fr: ChainFrames, point: np.ndarray, link: int) -> np.ndarray:

@@ -17,6 +17,7 @@ from tendonkit.kinematics import (
     link_jacobians,
     mass_matrix,
     ratio_matrix,
+    scalar_forward_kinematics,
     static_tension_difference,
 )
 from tendonkit.robot import PAPER_RATIOS, RobotParameters
@@ -134,6 +135,18 @@ def test_single_sample_and_batch_agree():
     q = _random_q(10, 3)
     np.testing.assert_allclose(forward_kinematics(q[1]), forward_kinematics(q)[1], atol=1e-15)
     np.testing.assert_allclose(jacobian(q[1]), jacobian(q)[1])
+
+
+def test_scalar_fk_agrees_with_the_vectorised_fk():
+    # Plain floats, same formula: equal to rounding (~1e-17 m) for every geometry.
+    q = _random_q(100, 4, 0.7)
+    for robot in (ROBOT, RobotParameters(link_pitch=0.05, tool_offset=0.03, R_base=0.025)):
+        fk = scalar_forward_kinematics(robot)
+        got = np.array([fk(row) for row in q.tolist()])
+        np.testing.assert_allclose(got, forward_kinematics(q, robot), rtol=0, atol=1e-15)
+        np.testing.assert_array_equal(got[7], forward_kinematics(q[7], robot))  # one sample
+    with pytest.raises(ValueError):
+        scalar_forward_kinematics()([0.1] * 5)
 
 
 def test_bad_shapes_raise_data_error():

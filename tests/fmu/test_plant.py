@@ -221,15 +221,43 @@ ALL_EFFECTS = {
 }
 
 
-@pytest.mark.parametrize("options", [{}, ALL_EFFECTS], ids=["nominal", "all"])
-def test_step_run_and_chunked_run_agree_exactly(options):
-    u = np.random.default_rng(1).uniform(20, 190, (120, 4))
+# Every effect alone, some pairs, all at once: step() runs its own per-frame path (plain
+# floats) and must reproduce run() for each of them.
+STEP_CASES: dict[str, dict[str, object]] = {
+    "nominal": {},
+    "friction": {"friction_on": True},
+    "backlash": {"backlash_on": True},
+    "delay": {"delay_on": True},  # three whole frames
+    "delay_fraction": {"delay_on": True, "delay_s": 0.05},
+    "deadzone": {"deadzone_on": True, "deadzone_T": 40.0},
+    "forcelag": {"forcelag_on": True},
+    "forcelag_deadzone": {"forcelag_on": True, "deadzone_on": True, "deadzone_T": 40.0},
+    "gravity": {"mount": "horiz_tilt", "settle_s": 0.3},
+    "hardening": {"hardening_on": True},
+    "softening": {"softening_on": True},
+    "noise": {"noise_on": True, "noise_quantum_T": 0.1, "seed": 3},
+    "camera": {"camera_on": True},
+    "friction_forcelag": {"friction_on": True, "forcelag_on": True},
+    "all": ALL_EFFECTS,
+}
+
+
+@pytest.mark.parametrize("h", [H, 0.01], ids=["h30ms", "h10ms"])
+@pytest.mark.parametrize("options", STEP_CASES.values(), ids=STEP_CASES)
+def test_step_run_and_chunked_run_agree_exactly(options, h):
+    # Commands beyond both tension bounds exercise the saturation too.  With h = 10 ms the
+    # sensors sample every third frame and hold in between (step() then goes through run()).
+    u = np.random.default_rng(1).uniform(0, 220, (120, 4))
     cfg = PlantConfig(**options)
-    whole = Plant(cfg).run(u)
-    stepper = Plant(cfg)
+    whole = Plant(cfg, h=h).run(u)
+    stepper = Plant(cfg, h=h)
     steps = [stepper.step(row) for row in u]
-    chunked = Plant(cfg)
+    chunked = Plant(cfg, h=h)
     parts = [chunked.run(u[:50]), chunked.run(u[50:])]
+    mixed = Plant(cfg, h=h)  # steps, then a run, then steps: the state passes both ways
+    first = [mixed.step(list(row)) for row in u[:30]]
+    middle = mixed.run(u[30:80])
+    last = [mixed.step(tuple(row)) for row in u[80:]]
     # Identical arithmetic up to the summation order of batched BLAS products (~1e-16).
     for key, width in OUTPUT_SIZES.items():
         assert whole[key].shape == (120, width)
@@ -237,7 +265,13 @@ def test_step_run_and_chunked_run_agree_exactly(options):
         np.testing.assert_allclose(stepped, whole[key], rtol=0, atol=1e-12)
         chunks = np.concatenate([p[key] for p in parts])
         np.testing.assert_allclose(chunks, whole[key], rtol=0, atol=1e-12)
-    np.testing.assert_allclose(whole["t"], H * np.arange(1, 121))
+        both = np.concatenate([[s[key] for s in first], middle[key], [s[key] for s in last]])
+        np.testing.assert_allclose(both, whole[key], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(whole["t"], h * np.arange(1, 121))
+    np.testing.assert_array_equal([s["t"] for s in steps], whole["t"])
+    for a, b in ((stepper, chunked), (stepper, mixed)):
+        for key, value in a.state.items():
+            np.testing.assert_allclose(value, b.state[key], rtol=0, atol=1e-12, err_msg=key)
 
 
 def test_step_returns_copies():

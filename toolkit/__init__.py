@@ -20,7 +20,7 @@ from tendonkit.errors import (
 from tendonkit.hookspecs import hookimpl
 from tendonkit.manager import effects, identifiers
 from tendonkit.metrics import fit, fit_table
-from tendonkit.mpc import LinearMPC, NoiseCovariance, NonlinearMPC, StepResult
+from tendonkit.mpc import InputTarget, LinearMPC, NoiseCovariance, NonlinearMPC, StepResult
 from tendonkit.schema import ARX, Block, Model, Provenance, Signal, SparseMap, StateSpace
 from tendonkit.simulate import predict, simulate, simulate_dataset
 from tendonkit.terms import Factor, Term
@@ -35,6 +35,7 @@ __all__ = [
     "Experiment",
     "FMUError",
     "Factor",
+    "InputTarget",
     "LinearMPC",
     "Model",
     "NoiseCovariance",

@@ -84,6 +84,35 @@ class NoiseCovariance:
         raise_if(bad, OptionError, "Invalid noise covariances:")
 
 
+@dataclass(frozen=True)
+class InputTarget:
+    """A penalty ``Σ_j |u_j - value|²_weight`` that holds inputs the outputs leave free.
+
+    With more inputs than outputs (four tendons, two joint angles) the tracking cost does not
+    fix every input combination: the common mode of an antagonistic pair changes the stiffness,
+    not the angle.  A model that is wrong along such a direction lets the optimiser drift along
+    it (for example down to slack tendons).  A small weight on ``M (u - value)``, with ``M``
+    selecting the free directions, anchors them without biasing the tracked outputs.
+
+    Parameters
+    ----------
+    weight : float, array (nu,) or (nu, nu)
+        Positive semidefinite weight (per squared input unit, e.g. 1/N²).
+    value : float or array (nu,)
+        The target input.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> M = np.array([[1.0, 0, 1, 0], [0, 1, 0, 1]])  # pair sums of two antagonistic pairs
+    >>> InputTarget(weight=0.1 * M.T @ M, value=105.0).value
+    105.0
+    """
+
+    weight: Any
+    value: Any = 0.0
+
+
 class _MPC:
     """Common part of the controllers: options, reference handling, fallback, clipping."""
 
@@ -109,6 +138,8 @@ class _MPC:
         solver_options: Mapping[str, Any] | None,
         failure_hook: Callable[[int], bool] | None,
         model_problems: list[str],
+        input_target: InputTarget | None = None,
+        du_max: ArrayLike = np.inf,
     ) -> None:
         nu, ny = len(model.inputs), len(model.outputs)
         p = list(model_problems)
@@ -118,8 +149,20 @@ class _MPC:
         self._Q = _weight(Q, ny, "Q", p)
         self._R = _weight(0.1 if R is None else R, nu, "R", p)
         self._Qf = _weight(Qf, ny, "Qf", p)
+        self._S: FloatArray | None = None
+        self._u_target = np.zeros(nu)
+        if input_target is not None and not isinstance(input_target, InputTarget):
+            p.append(f"input_target must be an InputTarget, found {type(input_target).__name__}.")
+        elif input_target is not None:
+            self._S = _weight(input_target.weight, nu, "input_target.weight", p)
+            self._u_target = _vector(input_target.value, nu, "input_target.value", p)
+            if not np.all(np.isfinite(self._u_target)):
+                p.append("input_target.value must be finite.")
         self.u_min = _vector(u_min, nu, "u_min", p)
         self.u_max = _vector(u_max, nu, "u_max", p)
+        self.du_max = _vector(du_max, nu, "du_max", p)
+        if np.any(np.isnan(self.du_max)) or np.any(self.du_max <= 0):
+            p.append(f"du_max must be > 0 (inf for no limit), found {du_max!r}.")
         self.y_min = _vector(y_min, ny, "y_min", p)
         self.y_max = _vector(y_max, ny, "y_max", p)
         for lo, hi, what in ((self.u_min, self.u_max, "u"), (self.y_min, self.y_max, "y")):
@@ -282,6 +325,9 @@ class _MPC:
             y_min=self.y_min,
             y_max=self.y_max,
             slack_weight=self.slack_weight,
+            Ls=None if self._S is None else _sqrt_psd(self._S),
+            u_target=self._u_target,
+            du_max=self.du_max,
         )
 
     def _measurement(self, y: ArrayLike | Mapping[str, float]) -> FloatArray:

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from tendonkit._mpc_base import _MPC, NoiseCovariance, _formulation
+from tendonkit._mpc_base import _MPC, InputTarget, NoiseCovariance, _formulation
 from tendonkit._mpc_qp import QPResult, TrackingQP
 from tendonkit.errors import OptionError
 from tendonkit.realize import to_state_space
@@ -259,6 +259,9 @@ class LinearMPC(_MPC):
     failure_hook : callable, optional
         Test hook: ``failure_hook(step_index) -> bool``; True makes that step behave as a
         solver failure (the previous input is held and counted as a fallback).
+    input_target : InputTarget, optional
+        Extra cost ``Σ |u_j - value|²_weight`` on the input directions the outputs leave free
+        (none by default).
 
     Attributes
     ----------
@@ -299,6 +302,8 @@ class LinearMPC(_MPC):
         fast: bool = True,
         solver_options: Mapping[str, Any] | None = None,
         failure_hook: Callable[[int], bool] | None = None,
+        input_target: InputTarget | None = None,
+        du_max: ArrayLike = np.inf,
     ) -> None:
         problems = linear_problems(model)
         if not (
@@ -328,6 +333,8 @@ class LinearMPC(_MPC):
             solver_options=solver_options,
             failure_hook=failure_hook,
             model_problems=problems,
+            input_target=input_target,
+            du_max=du_max,
         )
         lp = prediction_model(model, reduce)
         self.prediction = lp

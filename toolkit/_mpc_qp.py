@@ -4,11 +4,12 @@
 parameters (DPP), over the horizon ``j = 1..N``::
 
     minimise   sum_{j<N} |y_j - r_j|²_Q + |y_N - r_N|²_Qf + sum_{j<N} |Δu_j|²_R
-               + rho_1 sum(s) + rho_2 |s|²
+               + sum_{j<N} |u_j - u_target|²_S + rho_1 sum(s) + rho_2 |s|²
     subject to x_1     = x1 + B_0 u_0
                x_{j+1} = A_j x_j + B_j u_j + w_j
                y_j     = C x_j + D u_{j-1} + yoff
-               u_min <= u_j <= u_max,   y_min - s_j <= y_j <= y_max + s_j,   s >= 0
+               u_min <= u_j <= u_max,   |Δu_j| <= du_max (where finite)
+               y_min - s_j <= y_j <= y_max + s_j,   s >= 0
 
 with ``Δu_0 = u_0 - u_prev``.  The dynamics are either time invariant (``A``, ``B`` constant:
 only vectors change between steps) or time varying (``A_j``, ``B_j`` are parameters, for
@@ -75,6 +76,7 @@ class QPResult:
     ok: bool
     U: FloatArray | None = None
     Y: FloatArray | None = None
+    X: FloatArray | None = None
 
 
 @dataclass(frozen=True)
@@ -83,8 +85,9 @@ class QPSpec:
 
     ``A`` and ``B`` are the constant dynamics, or ``None`` for time-varying ones.  The solver
     works on scaled inputs ``v = (u - u_center) / u_scale`` (about [-1, 1] between bounds).  ``Lq``,
-    ``Lqf`` and ``Lr`` are square roots of the weights (``Q = Lqᵀ Lq``).  Output bounds may be
-    infinite; outputs without any finite bound get no slack variable.
+    ``Lqf``, ``Lr`` and ``Ls`` are square roots of the weights (``Q = Lqᵀ Lq``; ``Ls`` is None
+    without an input target).  ``du_max`` (None or inf: none) bounds the input moves.  Output
+    bounds may be infinite; outputs without any finite bound get no slack variable.
     """
 
     n: int
@@ -105,6 +108,9 @@ class QPSpec:
     y_min: FloatArray
     y_max: FloatArray
     slack_weight: tuple[float, float]
+    Ls: FloatArray | None = None
+    u_target: FloatArray | None = None
+    du_max: FloatArray | None = None
 
 
 class TrackingQP:
@@ -190,12 +196,23 @@ class TrackingQP:
                 cons.append(V[i, :] >= (spec.u_min[i] - spec.u_center[i]) / spec.u_scale[i])
             if np.isfinite(spec.u_max[i]):
                 cons.append(V[i, :] <= (spec.u_max[i] - spec.u_center[i]) / spec.u_scale[i])
+        if spec.du_max is not None and np.any(np.isfinite(spec.du_max)):
+            rows = [i for i in range(nu) if np.isfinite(spec.du_max[i])]
+            dU = cp.hstack(
+                [cp.reshape(U[:, 0] - p["u_prev"], (nu, 1), order="F"), U[:, 1:] - U[:, :-1]]
+            )
+            lim = (spec.du_max[rows] / spec.u_scale[rows])[:, None] @ np.ones((1, N))
+            dV = cp.multiply(1.0 / spec.u_scale[rows][:, None], dU[rows, :])
+            cons += [dV <= lim, dV >= -lim]  # rate limits, on the scaled inputs
         E = Y - p["r"]
         cost = cp.sum_squares(spec.Lqf @ E[:, N - 1])
         if N > 1:
             cost += cp.sum_squares(spec.Lq @ E[:, : N - 1])
         du0 = cp.reshape(U[:, 0] - p["u_prev"], (nu, 1), order="F")
         cost += cp.sum_squares(spec.Lr @ cp.hstack([du0, U[:, 1:] - U[:, :-1]]))
+        if spec.Ls is not None and np.any(spec.Ls):
+            target = np.zeros(nu) if spec.u_target is None else spec.u_target
+            cost += cp.sum_squares(spec.Ls @ (U - target[:, None] @ np.ones((1, N))))
         soft = [i for i in range(ny) if np.isfinite(spec.y_min[i]) or np.isfinite(spec.y_max[i])]
         if soft:  # soft output bounds with one slack per output and step
             S = cp.Variable((len(soft), N), name="slack")
@@ -210,6 +227,7 @@ class TrackingQP:
         self.problem = cp.Problem(cp.Minimize(cost), cons)
         self._variables = variables
         self._direct: _DirectSolver | None = None
+        self._values: dict[str, Any] = {}
         if fast:
             self._direct = _DirectSolver(self.problem, self.solver, self.options, variables)
 
@@ -249,17 +267,32 @@ class TrackingQP:
             Time-varying dynamics ``A_1..A_{N-1}`` and ``B_0..B_{N-1}``.
         """
         p = self.params
-        p["x1"].value = np.asarray(x1, dtype=float)
-        p["w"].value = np.asarray(w, dtype=float).reshape(p["w"].shape)
-        p["yoff"].value = np.asarray(yoff, dtype=float).reshape(-1, 1)
-        p["r"].value = np.asarray(r, dtype=float).T
-        p["u_prev"].value = np.asarray(u_prev, dtype=float)
+        vals: dict[str, Any] = {
+            "x1": np.asarray(x1, dtype=float),
+            "w": np.asarray(w, dtype=float).reshape(p["w"].shape),
+            "yoff": np.asarray(yoff, dtype=float).reshape(-1, 1),
+            "r": np.asarray(r, dtype=float).T,
+            "u_prev": np.asarray(u_prev, dtype=float),
+        }
         if self.time_varying:
             assert A is not None and B is not None
-            for par, val in zip(p["A"], A):
-                par.value = val
-            for par, val in zip(p["B"], B):
-                par.value = val
+            vals["A"], vals["B"] = list(A), list(B)
+        self._values = vals
+        if self._direct is not None:
+            # The fast path reads the raw arrays: cvxpy's Parameter.value setter validates
+            # every entry (about 50 µs per parameter, a fifth of a whole step).
+            by_id = {p[k].id: vals[k] for k in ("x1", "w", "yoff", "r", "u_prev")}
+            if self.time_varying:
+                for key in ("A", "B"):
+                    by_id.update((par.id, v) for par, v in zip(p[key], vals[key]))
+            self._direct.values = by_id
+            return
+        for key in ("x1", "w", "yoff", "r", "u_prev"):
+            p[key].value = vals[key]
+        if self.time_varying:
+            for key in ("A", "B"):
+                for par, val in zip(p[key], vals[key]):
+                    par.value = val
 
     # -- solving ------------------------------------------------------------------------
     def solve(self) -> QPResult:
@@ -271,15 +304,16 @@ class TrackingQP:
             vals = [np.asarray(v.value) for v in self._variables] if ok else []
         if not ok:
             return QPResult(status, False)
-        spec, p = self.spec, self.params
+        spec, p = self.spec, self._values
         U = spec.u_center[:, None] + spec.u_scale[:, None] * vals[0]
         if self.formulation == "condensed":
             Gu, Gx1, Gw = self._maps
-            y = Gu @ U.ravel(order="F") + Gx1 @ p["x1"].value + Gw @ p["w"].value[:, 0]
-            Y = y.reshape((spec.ny, spec.horizon), order="F") + p["yoff"].value
+            y = Gu @ U.ravel(order="F") + Gx1 @ p["x1"] + Gw @ p["w"][:, 0]
+            Y = y.reshape((spec.ny, spec.horizon), order="F") + p["yoff"]
         else:
-            Y = spec.C @ vals[1] + spec.D @ U + p["yoff"].value
-        return QPResult(status, True, U=np.asarray(U), Y=np.asarray(Y))
+            Y = spec.C @ vals[1] + spec.D @ U + p["yoff"]
+        X = None if self.formulation == "condensed" else np.asarray(vals[1])
+        return QPResult(status, True, U=np.asarray(U), Y=np.asarray(Y), X=X)
 
     def _solve_cvxpy(self) -> tuple[str, bool]:
         import cvxpy as cp
@@ -313,7 +347,11 @@ class _DirectSolver:
             raise OptionError("The MPC problem compiled to cones other than a QP's.")
         self.n_eq, self.n_ineq = int(dims.zero), int(dims.nonneg)
         self._params = [p for p in prog.parameters]
-        size = sum(int(p.size) for p in self._params)
+        self._sizes = [int(p.size) for p in self._params]
+        #: Raw parameter values by parameter id (set by :meth:`TrackingQP.set_parameters`);
+        #: a parameter missing here is read from its cvxpy ``value``.
+        self.values: dict[int, Any] = {}
+        size = sum(self._sizes)
         self._param_vec = np.zeros(size)
 
         def apply(values: dict[int, FloatArray], zero_offset: bool) -> tuple[Any, ...]:
@@ -371,11 +409,11 @@ class _DirectSolver:
 
     # -- data of the current parameter values ---------------------------------------------
     def _vector(self) -> FloatArray:
-        vec = self._param_vec
+        vec, values = self._param_vec, self.values
         pos = 0
-        for p in self._params:
-            s = int(p.size)
-            vec[pos : pos + s] = np.asarray(p.value, dtype=float).ravel(order="F")
+        for p, s in zip(self._params, self._sizes):
+            v = values.get(p.id) if values else None
+            vec[pos : pos + s] = np.ravel(p.value if v is None else v, order="F")
             pos += s
         return vec
 

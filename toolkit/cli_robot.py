@@ -9,12 +9,9 @@ status 2).
 from __future__ import annotations
 
 import argparse
-import json
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
-
-import numpy as np
 
 from tendonkit.cli import atomic_write, check_output_path, raise_problems, write_json
 from tendonkit.errors import DataError, OptionError, SchemaError

@@ -3,16 +3,26 @@
 Every 30 ms (the plant FMU's fixed communication step) the master reads the plant's measured
 outputs, asks the controller for the tendon forces and writes them to ``T_cmd1..T_cmd4``
 before the next ``doStep``.  The plant has no direct feedthrough from force to angle, so the
-outputs read at ``t_k`` are those of the state at ``t_k`` and the loop is causal.
+outputs read at ``t_k`` are those of the state at ``t_k`` and the loop is causal.  The plant is
+driven through :class:`tendonkit.collect.PlantSession` (fmpy's FMI 2.0 C API with preallocated
+buffers).
 
 References (end-effector curves converted to q1, q2 references with the constant-ratio
 inverse kinematics, as in the paper): ``petal`` (rose curve ``r = A cos(kθ)``), ``circle`` and
 ``step``.  The open-loop kinematic controller of the data-collection protocol is available as
-a baseline on the same plant and reference (:func:`open_loop`).
+a baseline on the same plant and reference (:func:`open_loop`).  :func:`make_controller` builds
+the linear or the nonlinear MPC for a model, with the settings tuned for this robot
+(:class:`ControllerSettings`).
 
 Fault handling: a solver failure or infeasibility makes the controller hold its last input;
 the master counts those fallbacks and reports them; inputs are clipped to their bounds before
 they reach the plant and any attempt to leave them is counted as a violation (must be 0).
+
+Examples
+--------
+>>> ref = make_reference("petal", duration=20.0, speed=0.08)
+>>> ref.q12.shape, round(ref.duration, 2)
+((667, 2), 20.01)
 """
 
 from __future__ import annotations
@@ -26,7 +36,33 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from tendonkit.errors import FMUError, OptionError
+from tendonkit.controllers import (
+    DEFAULTS,
+    PAIR_SUMS,
+    PRETENSION,
+    ControllerSettings,
+    controller_kind,
+    make_controller,
+)
+from tendonkit.errors import FMUError, OptionError, raise_if
+from tendonkit.figures import plot_tracking
+
+__all__ = [
+    "DEFAULTS",
+    "PAIR_SUMS",
+    "PRETENSION",
+    "REFERENCES",
+    "ControllerSettings",
+    "CosimResult",
+    "PlantFMU",
+    "Reference",
+    "controller_kind",
+    "make_controller",
+    "make_reference",
+    "open_loop",
+    "plot_tracking",
+    "run",
+]
 
 FloatArray = NDArray[np.float64]
 
@@ -36,6 +72,7 @@ OUTPUTS = ("q1", "q2", "q3", "q4", "q5", "q6", "ee_x", "ee_y", "ee_z", "T1", "T2
 TRUTH = ("q1_true", "q2_true", "ee_x_true", "ee_y_true", "ee_z_true")
 REFERENCES = ("petal", "circle", "step")
 DEADLINE_S = 0.030
+#: Pretension of the kinematic controller and of the pair-sum input target, N.
 
 
 class Controller(Protocol):
@@ -50,15 +87,40 @@ class Controller(Protocol):
         """One control step: returns an object with ``u``, ``fallback``, ``solve_time_s``."""
 
 
+# -- references --------------------------------------------------------------------------------
+
+
 @dataclass(frozen=True)
 class Reference:
-    """A reference for q1, q2 and the end effector, sampled every ``dt`` seconds."""
+    """A reference for q1, q2 and the end effector, sampled every ``STEP`` seconds.
+
+    Attributes
+    ----------
+    name : str
+        ``petal``, ``circle`` or ``step``.
+    t : array (n,)
+        Sample times, s.
+    q12 : array (n, 2)
+        Joint references q1, q2, rad.
+    ee : array (n, 3)
+        End-effector reference, m.
+    u_open_loop : array (n, 4)
+        The open-loop kinematic controller's commands for this reference, N.
+    info : dict
+        The options the reference was built with.
+    """
 
     name: str
     t: FloatArray
-    q12: FloatArray  # (n, 2) rad
-    ee: FloatArray  # (n, 3) m
-    u_open_loop: FloatArray  # (n, 4) N: the kinematic controller's commands
+    q12: FloatArray
+    ee: FloatArray
+    u_open_loop: FloatArray
+    info: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def duration(self) -> float:
+        """Length of the reference, s."""
+        return len(self.t) * STEP
 
     def preview(self, k: int, horizon: int) -> FloatArray:
         """References for the next ``horizon`` samples after ``k`` (last value repeated)."""
@@ -67,182 +129,231 @@ class Reference:
 
 
 def make_reference(
-    kind: str, *, duration: float | None = None, amplitude: float = 0.09, petals: int = 3
+    kind: str,
+    *,
+    duration: float | None = None,
+    amplitude: float = 0.09,
+    petals: int = 3,
+    speed: float = 0.025,
+    laps: float | None = None,
 ) -> Reference:
     """Build a reference: ``petal``, ``circle`` or ``step`` (spec §12, MPC test reference).
+
+    Petal and circle start with a 2 s ramp from the centre, run at the constant end-effector
+    ``speed``, ramp back in 2 s and rest.  With ``duration`` and no ``laps`` they run as many
+    laps as fit; the result is cut, or held at rest, to exactly ``duration``.
 
     Parameters
     ----------
     kind : str
         One of :data:`REFERENCES`.
     duration : float, optional
-        Truncate or repeat to this many seconds.
+        Length, s (step: default 12 s).
     amplitude : float
-        Petal amplitude A or circle radius, metres.
+        Petal amplitude A or circle radius, m (step: the joint step, rad, is 5/3 of it).
     petals : int
         The rose parameter k of the petal.
+    speed : float
+        End-effector speed, m/s.
+    laps : float, optional
+        Traversals of the curve (default: fill ``duration``, or 1 lap / 2 laps for a circle).
+
+    Returns
+    -------
+    Reference
+
+    Examples
+    --------
+    >>> make_reference("step", duration=3.0).q12.shape
+    (100, 2)
     """
     from tendonkit import protocol
-    from tendonkit.kinematics import commanded_tensions, forward_kinematics
+    from tendonkit.kinematics import commanded_tensions, expand_joints, forward_kinematics
 
+    problems = []
     if kind not in REFERENCES:
-        raise OptionError(f"Unknown reference {kind!r}; choose one of {', '.join(REFERENCES)}.")
-    if kind == "petal":
-        p = protocol.petal(petals=petals, amplitude=amplitude)
-        q12, ee, u = p.q_ref[:, :2], p.ee_ref, p.u
-    elif kind == "circle":
-        p = protocol.circles(radii=[amplitude], laps=2)
-        q12, ee, u = p.q_ref[:, :2], p.ee_ref, p.u
-    else:
-        n = round((duration or 12.0) / STEP)
-        q12 = np.zeros((n, 2))
-        quarter = max(n // 4, 1)
-        q12[quarter : 2 * quarter, 0] = 0.15
-        q12[2 * quarter : 3 * quarter, 1] = -0.15
-        q12[3 * quarter :, :] = (0.1, 0.1)
-        from tendonkit.kinematics import expand_joints
+        problems.append(f"unknown reference {kind!r}; choose one of {', '.join(REFERENCES)}")
+    if duration is not None and not (np.isfinite(duration) and STEP <= duration <= 3600):
+        problems.append(f"duration must be in [{STEP}, 3600] s, found {duration!r}")
+    if laps is not None and not (np.isfinite(laps) and 0 < laps <= 100):
+        problems.append(f"laps must be in (0, 100], found {laps!r}")
+    raise_if(problems, OptionError, "Invalid reference:")
+    info = {"amplitude": amplitude, "petals": petals, "speed": speed, "laps": laps}
+    try:
+        if kind in ("petal", "circle"):
 
-        ee = forward_kinematics(expand_joints(q12))
-        u = commanded_tensions(q12, 105.0)
+            def build(n_laps: float) -> Any:
+                if kind == "petal":
+                    return protocol.petal(petals, amplitude, speed=speed, laps=n_laps)
+                return protocol.circles(radii=[amplitude], laps=n_laps, speed=speed)
+
+            if laps is None and duration is not None:
+                one = build(1.0)
+                period = STEP * int(np.sum(one.phase == protocol.PHASES.index("main")))
+                laps = max((duration - (one.n_samples * STEP - period)) / period, 0.05)
+            p = build(laps if laps is not None else (1.0 if kind == "petal" else 2.0))
+            info["laps"] = laps
+            q12, ee, u = p.q_ref[:, :2], p.ee_ref, p.u
+        else:
+            n = round((duration or 12.0) / STEP)
+            step = amplitude * 5.0 / 3.0
+            q12 = np.zeros((n, 2))
+            quarter = max(n // 4, 1)
+            q12[quarter : 2 * quarter, 0] = step
+            q12[2 * quarter : 3 * quarter, 1] = -step
+            q12[3 * quarter :, :] = (2.0 * step / 3.0, 2.0 * step / 3.0)
+            ee = forward_kinematics(expand_joints(q12))
+            u = commanded_tensions(q12, PRETENSION)
+    except OptionError as exc:
+        raise OptionError("Invalid reference:", exc.problems or [str(exc)]) from None
     if duration is not None:
         n = round(duration / STEP)
-        reps = int(np.ceil(n / len(q12)))
-        q12, ee, u = (np.concatenate([a] * reps)[:n] for a in (q12, ee, u))
+        idx = np.minimum(np.arange(n), len(q12) - 1)  # cut, or hold the final rest
+        q12, ee, u = q12[idx], ee[idx], u[idx]
     t = np.asarray(STEP * np.arange(len(q12)), dtype=np.float64)
-    return Reference(kind, t, np.asarray(q12, float), np.asarray(ee, float), np.asarray(u, float))
+    return Reference(
+        kind, t, np.asarray(q12, float), np.asarray(ee, float), np.asarray(u, float), info
+    )
+
+
+# -- results -----------------------------------------------------------------------------------
+
+
+def _stats_ms(seconds: FloatArray) -> dict[str, float]:
+    ms = 1e3 * np.asarray(seconds, dtype=float)
+    return {
+        "median": float(np.median(ms)),
+        "p99": float(np.percentile(ms, 99)),
+        "max": float(np.max(ms)),
+    }
+
+
+def _rms(e: FloatArray) -> dict[str, float]:
+    r = np.sqrt(np.mean(np.asarray(e) ** 2, axis=0))
+    return {"q1": float(r[0]), "q2": float(r[1])}
 
 
 @dataclass
 class CosimResult:
-    """Time series and summary figures of one closed-loop (or open-loop) run."""
+    """Time series and summary figures of one closed-loop (or open-loop) run.
+
+    Attributes
+    ----------
+    controller : str
+        Name of the run.
+    reference : Reference
+        What was tracked.
+    y : array (n, 13)
+        Measured :data:`OUTPUTS` read at each step, before the command.
+    truth : array (n, 5)
+        :data:`TRUTH` at the same instants (the plant's true q1, q2 and end effector).
+    u : array (n, 4)
+        Applied commands, N.
+    solve_times, step_times : array (n,)
+        QP solve time and the controller's whole step (master-measured), s; empty open loop.
+    fallbacks, violations : int
+        Steps that held the previous input, and commands outside the bounds (clipped).
+    wall_time_s, cpu_time_s, plant_time_s : float
+        Wall-clock and process CPU time of the loop, and the wall time inside the plant FMU.
+    statuses : dict
+        Solver status -> count.
+    parameters : dict
+        The plant FMU's parameters in force.
+    """
 
     controller: str
     reference: Reference
-    y: FloatArray  # measured q1..q6, ee_x..ee_z, T1..T4 per step (n, 13)
-    truth: FloatArray  # q1_true, q2_true, ee_true (n, 5)
-    u: FloatArray  # applied T_cmd (n, 4)
+    y: FloatArray
+    truth: FloatArray
+    u: FloatArray
     solve_times: FloatArray
     step_times: FloatArray
     fallbacks: int
     violations: int
     wall_time_s: float
     statuses: dict[str, int] = field(default_factory=dict)
+    cpu_time_s: float = 0.0
+    plant_time_s: float = 0.0
+    parameters: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def rms_error_true(self) -> FloatArray:
+        """RMS of (true q1, q2 − reference), rad."""
+        return np.sqrt(np.mean((self.truth[:, :2] - self.reference.q12) ** 2, axis=0))
 
     def summary(self) -> dict[str, Any]:
-        """The figures the ``mpc`` command reports (JSON-ready)."""
+        """The figures the ``mpc`` command reports (JSON-ready).
+
+        Errors are RMS over the whole run (ramps and rest included): ``rms_error_rad`` of the
+        measured angles (camera noise and lag included, as the paper measures),
+        ``rms_error_true_rad`` of the plant's true angles; the end-effector error is the mean
+        distance to the reference, measured and true.  Times: the QP solve, the controller's
+        whole step (estimation, linearisation, solve; a step above 30 ms misses its deadline)
+        and the real-time factor (simulated time / wall time of the loop).
+        """
         r = self.reference
-        e = self.y[:, :2] - r.q12
         ee_err = np.linalg.norm(self.y[:, 6:9] - r.ee, axis=1)
-        ms = 1e3 * self.solve_times
-        duration = len(r.t) * STEP
+        ee_true = np.linalg.norm(self.truth[:, 2:5] - r.ee, axis=1)
         out: dict[str, Any] = {
             "controller": self.controller,
             "reference": r.name,
-            "duration_s": duration,
-            "rms_error_rad": {
-                "q1": float(np.sqrt(np.mean(e[:, 0] ** 2))),
-                "q2": float(np.sqrt(np.mean(e[:, 1] ** 2))),
-            },
-            "rms_error_true_rad": {
-                "q1": float(np.sqrt(np.mean((self.truth[:, 0] - r.q12[:, 0]) ** 2))),
-                "q2": float(np.sqrt(np.mean((self.truth[:, 1] - r.q12[:, 1]) ** 2))),
-            },
+            "duration_s": r.duration,
+            "samples": len(r.t),
+            "rms_error_rad": _rms(self.y[:, :2] - r.q12),
+            "rms_error_true_rad": _rms(self.truth[:, :2] - r.q12),
             "mean_ee_error_cm": float(100 * np.mean(ee_err)),
+            "mean_ee_error_true_cm": float(100 * np.mean(ee_true)),
             "fallbacks": int(self.fallbacks),
             "input_bound_violations": int(self.violations),
-            "realtime_factor": float(duration / self.wall_time_s) if self.wall_time_s > 0 else None,
-            "statuses": self.statuses,
+            "statuses": dict(self.statuses),
+            "wall_time_s": self.wall_time_s,
+            "cpu_time_s": self.cpu_time_s,
+            "plant_time_s": self.plant_time_s,
+            "realtime_factor": r.duration / self.wall_time_s if self.wall_time_s > 0 else None,
         }
-        if len(ms):
-            out["solve_time_ms"] = {
-                "median": float(np.median(ms)),
-                "p99": float(np.percentile(ms, 99)),
-                "max": float(np.max(ms)),
-            }
-            out["step_time_ms"] = {
-                "median": float(np.median(1e3 * self.step_times)),
-                "p99": float(np.percentile(1e3 * self.step_times, 99)),
-                "max": float(np.max(1e3 * self.step_times)),
-            }
+        if len(self.solve_times):
+            out["solve_time_ms"] = _stats_ms(self.solve_times)
+            out["step_time_ms"] = _stats_ms(self.step_times)
             out["deadline_misses"] = int(np.sum(self.step_times > DEADLINE_S))
         return out
 
 
+# -- the plant ---------------------------------------------------------------------------------
+
+
 class PlantFMU:
-    """A plant FMU instance driven step by step through fmpy's FMI 2.0 co-simulation API."""
+    """A plant FMU instance, stepped frame by frame (a view of :data:`OUTPUTS` + :data:`TRUTH`).
+
+    Parameters
+    ----------
+    path : str or Path
+        A tendonkit plant FMU.
+    parameters : mapping, optional
+        Parameter overrides by FMU name (``friction_on``, ``delay_s`` …).
+    """
 
     def __init__(self, path: str | Path, parameters: Mapping[str, Any] | None = None) -> None:
-        from fmpy import extract, read_model_description
-        from fmpy.fmi2 import FMU2Slave
+        from tendonkit.collect import OUTPUTS as ALL
+        from tendonkit.collect import PlantSession
 
         path = Path(path)
-        if not path.exists():
+        if not path.is_file():
             raise FMUError(f"Plant FMU {str(path)!r} does not exist.")
-        try:
-            md = read_model_description(str(path))
-        except Exception as exc:  # fmpy raises various errors for broken archives
-            raise FMUError(f"{path} is not a readable FMU: {exc}") from None
-        self._vars = {v.name: v for v in md.modelVariables}
-        missing = [n for n in (*INPUTS, *OUTPUTS, *TRUTH) if n not in self._vars]
-        if missing:
-            raise FMUError(
-                f"{path} is not a tendonkit plant FMU; missing variables: {', '.join(missing)}."
-            )
-        self._md = md
-        self._dir = extract(str(path))
-        self._fmu = FMU2Slave(
-            guid=md.guid,
-            unzipDirectory=self._dir,
-            modelIdentifier=md.coSimulation.modelIdentifier,
-            instanceName="plant",
-        )
-        self._params = dict(parameters or {})
-        unknown = [
-            k for k in self._params if k not in self._vars or self._vars[k].causality != "parameter"
-        ]
-        if unknown:
-            params = sorted(k for k, v in self._vars.items() if v.causality == "parameter")
-            raise OptionError(
-                f"Unknown plant parameters {unknown}; the plant FMU has: {', '.join(params)}."
-            )
-        self._vr_in = [self._vars[n].valueReference for n in INPUTS]
-        self._vr_out = [self._vars[n].valueReference for n in (*OUTPUTS, *TRUTH)]
-        self.t = 0.0
+        self._session = PlantSession(path, parameters)
+        self._index = np.array([ALL.index(n) for n in (*OUTPUTS, *TRUTH)])
+        self.parameters = dict(self._session.parameters)
 
     def start(self) -> FloatArray:
-        """Instantiate, apply parameters, initialise; returns the outputs at t = 0."""
-        f = self._fmu
-        f.instantiate()
-        f.setupExperiment(startTime=0.0)
-        for name, value in self._params.items():
-            v = self._vars[name]
-            vr = [v.valueReference]
-            if v.type == "Real":
-                f.setReal(vr, [float(value)])
-            elif v.type in ("Integer", "Enumeration"):
-                f.setInteger(vr, [int(value)])
-            elif v.type == "Boolean":
-                f.setBoolean(vr, [bool(int(value)) if isinstance(value, str) else bool(value)])
-            else:
-                f.setString(vr, [str(value)])
-        f.enterInitializationMode()
-        f.exitInitializationMode()
-        self.t = 0.0
-        return np.asarray(f.getReal(self._vr_out))
+        """The outputs at t = 0 (the FMU is initialised on construction)."""
+        return self._session.outputs[self._index]
 
     def step(self, u: FloatArray) -> FloatArray:
         """Apply ``u`` over one 30 ms step; returns the outputs at the end of it."""
-        self._fmu.setReal(self._vr_in, [float(x) for x in u])
-        self._fmu.doStep(currentCommunicationPoint=self.t, communicationStepSize=STEP)
-        self.t += STEP
-        return np.asarray(self._fmu.getReal(self._vr_out))
+        return self._session.step(u)[self._index]
 
     def close(self) -> None:
         """Terminate and free the instance."""
-        try:
-            self._fmu.terminate()
-        finally:
-            self._fmu.freeInstance()
+        self._session.close()
 
 
 def run(
@@ -258,60 +369,112 @@ def run(
 ) -> CosimResult:
     """Run ``controller`` (or the open-loop kinematic controller when None) against the plant.
 
-    The controller measures q1 and q2 (the model's outputs, matched by name) and commands the
-    four tendon forces (the model's inputs, matched by name to ``T1..T4``/``u1..u4`` order).
+    The controller measures the plant outputs named like its model's outputs (``q1``, ``q2``)
+    and gets the reference preview in that order; its inputs are the commanded forces
+    ``T_cmd1..T_cmd4`` in order.
+
+    Parameters
+    ----------
+    plant_fmu : str or Path
+        The plant FMU.
+    reference : Reference
+        What to track (:func:`make_reference`).
+    controller : Controller, optional
+        E.g. from :func:`make_controller`; None runs the open-loop kinematic controller.
+    parameters : mapping, optional
+        Plant FMU parameter overrides.
+    u_min, u_max : float
+        Input bounds, N: commands outside are clipped and counted as violations.
+    name : str
+        Name of the run in the result.
+    progress : bool
+        Show a progress bar on standard error.
+
+    Returns
+    -------
+    CosimResult
     """
     from tqdm import tqdm
 
-    plant = PlantFMU(plant_fmu, parameters)
+    names = list(getattr(controller, "output_names", ["q1", "q2"])) if controller else []
+    if any(n not in ("q1", "q2") for n in names):
+        raise OptionError(f"Only q1 and q2 have a reference; the controller measures {names}.")
+    meas = np.array([OUTPUTS.index(n) for n in names], dtype=int)
+    ref_cols = np.array([("q1", "q2").index(n) for n in names], dtype=int)
     n = len(reference.t)
-    width = len(OUTPUTS) + len(TRUTH)
-    Y = np.empty((n, width))
+    Y = np.empty((n, len(OUTPUTS) + len(TRUTH)))
     U = np.empty((n, 4))
-    solve, steps = [], []
+    solve = np.zeros(n if controller is not None else 0)
+    steps = np.zeros_like(solve)
     fallbacks = violations = 0
     statuses: dict[str, int] = {}
-    t0 = time.perf_counter()
+    u_prev = reference.u_open_loop[0].copy()
+    plant = PlantFMU(plant_fmu, parameters)
+    plant_time = 0.0
+    clock, cpu = time.perf_counter, time.process_time
     try:
         y = plant.start()
-        u_prev = reference.u_open_loop[0].copy()
         if controller is not None:
-            controller.reset(u0=u_prev, y0=y[:2])
+            controller.reset(u0=u_prev, y0=y[meas])
+        t0, c0 = clock(), cpu()
         for k in tqdm(range(n), desc=name, disable=not progress, unit="step", leave=False):
             Y[k] = y
             if controller is None:
                 u = reference.u_open_loop[k]
             else:
-                res = controller.step(y[:2], reference.preview(k, controller.horizon))
+                ts = clock()
+                res = controller.step(
+                    y[meas], reference.preview(k, controller.horizon)[:, ref_cols]
+                )
+                steps[k] = clock() - ts
                 u = np.asarray(res.u, dtype=float)
                 fallbacks += int(bool(res.fallback))
-                solve.append(float(res.solve_time_s))
-                steps.append(float(getattr(res, "step_time_s", res.solve_time_s)))
+                solve[k] = float(res.solve_time_s)
                 statuses[str(res.status)] = statuses.get(str(res.status), 0) + 1
-            if np.any(u < u_min - 1e-9) or np.any(u > u_max + 1e-9) or not np.all(np.isfinite(u)):
+            if not (np.all(np.isfinite(u)) and np.all(u >= u_min) and np.all(u <= u_max)):
                 violations += 1
                 u = np.clip(np.where(np.isfinite(u), u, u_prev), u_min, u_max)
             U[k] = u
             u_prev = u
+            tp = clock()
             y = plant.step(u)
+            plant_time += clock() - tp
+        wall, cpu_time = clock() - t0, cpu() - c0
+        params = plant.parameters
     finally:
         plant.close()
-    wall = time.perf_counter() - t0
     return CosimResult(
         controller=name,
         reference=reference,
         y=Y[:, : len(OUTPUTS)],
         truth=Y[:, len(OUTPUTS) :],
         u=U,
-        solve_times=np.asarray(solve),
-        step_times=np.asarray(steps),
+        solve_times=solve,
+        step_times=steps,
         fallbacks=fallbacks,
         violations=violations,
         wall_time_s=wall,
         statuses=statuses,
+        cpu_time_s=cpu_time,
+        plant_time_s=plant_time,
+        parameters=params,
     )
 
 
 def open_loop(plant_fmu: str | Path, reference: Reference, **kwargs: Any) -> CosimResult:
-    """The open-loop kinematic controller of the data-collection protocol on the same plant."""
+    """The open-loop kinematic controller of the data-collection protocol on the same plant.
+
+    Parameters
+    ----------
+    plant_fmu : str or Path
+        The plant FMU.
+    reference : Reference
+        Its ``u_open_loop`` commands are played.
+    **kwargs
+        As for :func:`run` (``parameters``, ``progress``).
+
+    Returns
+    -------
+    CosimResult
+    """
     return run(plant_fmu, reference, None, name="open-loop kinematic", **kwargs)

@@ -8,14 +8,17 @@ reference.  Every axis has a label with its unit, every figure a title and a leg
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from tendonkit.errors import DataError
+from tendonkit.errors import DataError, OptionError
+
+if TYPE_CHECKING:
+    from tendonkit.cosim import CosimResult
 
 __all__ = ["ee_path_figure", "fig2", "joint_angle_figure"]
 
@@ -177,3 +180,67 @@ def fig2(
         joint_angle_figure(columns, out / "joint_angles.png", title),
         ee_path_figure(columns, out / "ee_path.png", ee_ref, title),
     ]
+
+
+def plot_tracking(
+    results: Mapping[str, CosimResult] | Sequence[CosimResult], out_dir: str | Path
+) -> list[Path]:
+    """The paper's Fig. 5 equivalent: joint tracking and end-effector path (one PNG).
+
+    Parameters
+    ----------
+    results : mapping name -> CosimResult, or sequence of CosimResult
+        Runs on the same reference (e.g. the MPC and the open loop); labelled by the mapping's
+        keys or by ``CosimResult.controller``.
+    out_dir : str or Path
+        Folder (created if needed).
+
+    Returns
+    -------
+    list of Path
+        ``[out_dir / "fig5_tracking.png"]``.
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    runs = (
+        list(results.items())
+        if isinstance(results, Mapping)
+        else [(r.controller, r) for r in results]
+    )
+    if not runs:
+        raise OptionError("plot_tracking needs at least one result.")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    ref = runs[0][1].reference
+    fig = Figure(figsize=(13.0, 6.5), layout="constrained")
+    FigureCanvasAgg(fig)
+    grid = fig.add_gridspec(2, 2, width_ratios=(1.6, 1.0))
+    ax_q = [fig.add_subplot(grid[0, 0]), fig.add_subplot(grid[1, 0])]
+    ax_ee = fig.add_subplot(grid[:, 1])
+    colors = ["tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple"]
+    for j, ax in enumerate(ax_q):
+        ax.plot(ref.t, ref.q12[:, j], "k--", lw=1.2, label=f"reference q{j + 1}")
+        for (label, res), color in zip(runs, colors):
+            rms = 1e3 * res.rms_error_true[j]
+            ax.plot(
+                ref.t, res.truth[:, j], color=color, lw=1.0, label=f"{label} (RMS {rms:.1f} mrad)"
+            )
+        ax.set_ylabel(f"q{j + 1} [rad]")
+        ax.grid(True, alpha=0.3)
+        ax.legend(loc="upper right", fontsize="small")
+    ax_q[0].set_title("Joint tracking (true joint angles)")
+    ax_q[1].set_xlabel("time t [s]")
+    ax_ee.plot(100 * ref.ee[:, 0], 100 * ref.ee[:, 1], "k--", lw=1.2, label="reference")
+    for (label, res), color in zip(runs, colors):
+        ax_ee.plot(100 * res.truth[:, 2], 100 * res.truth[:, 3], color=color, lw=1.0, label=label)
+    ax_ee.set_aspect("equal", adjustable="datalim")
+    ax_ee.set_xlabel("x [cm]")
+    ax_ee.set_ylabel("y [cm]")
+    ax_ee.grid(True, alpha=0.3)
+    ax_ee.legend(loc="upper right", fontsize="small")
+    ax_ee.set_title("End-effector path in the base x–y plane (true)")
+    fig.suptitle(f"Tracking of the {ref.name} reference (co-simulation with the plant FMU)")
+    path = out / "fig5_tracking.png"
+    fig.savefig(path, dpi=110)
+    return [path]

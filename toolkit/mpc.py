@@ -10,7 +10,8 @@ Two controllers share one interface and one tracking problem (:mod:`tendonkit._m
   step (real-time iteration), an extended Kalman filter with an output disturbance.
 
 The cost over the horizon ``N`` is ``Σ_{k=1}^{N-1} |y_k - r_k|²_Q + |y_N - r_N|²_Qf +
-Σ_{k=0}^{N-1} |Δu_k|²_R`` (no penalty on ``u`` itself), with hard input bounds and soft output
+Σ_{k=0}^{N-1} |Δu_k|²_R`` (no penalty on ``u`` itself unless an :class:`InputTarget` is
+given), with hard input bounds (and optional move limits ``du_max``) and soft output
 bounds (slack variables with a linear and a quadratic penalty, so the problem is always
 feasible).  The predicted output ``y_k`` is sampled while ``u_{k-1}`` is applied (a
 feed-through ``D`` acts with the previous input).  Each step the controller holds the last
@@ -34,8 +35,8 @@ Examples
 
 from __future__ import annotations
 
-from tendonkit._mpc_base import NoiseCovariance, StepResult
+from tendonkit._mpc_base import InputTarget, NoiseCovariance, StepResult
 from tendonkit._mpc_linear import LinearMPC
 from tendonkit._mpc_nonlinear import NonlinearMPC
 
-__all__ = ["LinearMPC", "NoiseCovariance", "NonlinearMPC", "StepResult"]
+__all__ = ["InputTarget", "LinearMPC", "NoiseCovariance", "NonlinearMPC", "StepResult"]

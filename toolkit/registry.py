@@ -198,6 +198,14 @@ def create_options(factory: type, options: dict[str, Any]) -> Any:
                 f"option {key}={raw!r} is not a valid {_type_name(hints.get(key, Any))}."
             )
     if problems:
+        # Validate the options that did convert too (the others at their defaults), so that
+        # every problem is reported at once.
+        try:
+            factory(**values)
+        except OptionError as exc:
+            problems.extend(exc.problems or [str(exc)])
+        except TypeError:
+            pass
         raise OptionError(
             f"Invalid options for {getattr(factory, 'name', factory.__name__)}:", problems
         )

@@ -175,20 +175,18 @@ def test_mpc_beats_the_open_loop_controller(plant, kind):
     assert s["q1"] < o["q1"] and s["q2"] < o["q2"]
 
 
+@pytest.mark.parametrize("plant", ["nominal"], indirect=True)
 def test_quasi_static_nominal_petal_leaves_nothing_to_win(plant):
     """The premise of the fast nominal petal: at 2.5 cm/s the open loop is already at the
     noise level (RMS < 3 mrad against σ_q = 5 mrad), at 8 cm/s its error is twice as large."""
-    if plant.name != "nominal":
-        pytest.skip("the premise concerns the nominal plant")
     slow = make_reference("petal", amplitude=0.09, petals=3, speed=0.025, laps=1.0)
     err_slow = open_loop(plant.fmu, slow).rms_error_true
     assert np.all(err_slow < 3e-3), err_slow
     assert np.all(plant.open_loop.rms_error_true > 2.0 * err_slow)
 
 
+@pytest.mark.parametrize("plant", ["nominal"], indirect=True)
 def test_forced_solver_failures_are_reported_and_the_loop_goes_on(plant):
-    if plant.name != "nominal":
-        pytest.skip("one plant is enough for the fault path")
     n = len(plant.reference.t)
     forced = set(range(200, 215)) | set(range(300, n, 50))
     ctrl = make_controller(plant.models["linear"], failure_hook=lambda k: k in forced)
@@ -209,10 +207,9 @@ def test_forced_solver_failures_are_reported_and_the_loop_goes_on(plant):
     assert np.all(rms < rms_ol)
 
 
+@pytest.mark.parametrize("plant", ["nominal"], indirect=True)
 def test_a_failing_solver_holds_the_input(plant):
     """A genuine solver failure (Clarabel stopped after one iteration) on every step."""
-    if plant.name != "nominal":
-        pytest.skip("one plant is enough for the fault path")
     ref = make_reference("petal", speed=0.08, duration=3.0)
     ctrl = LinearMPC(plant.models["linear"], horizon=10, solver_options={"max_iter": 1})
     res = run(plant.fmu, ref, ctrl, parameters=plant.parameters)
@@ -222,10 +219,9 @@ def test_a_failing_solver_holds_the_input(plant):
     np.testing.assert_array_equal(res.u, np.repeat(ref.u_open_loop[:1], len(ref.t), axis=0))
 
 
+@pytest.mark.parametrize("plant", ["paper_like"], indirect=True)
 def test_design_path_gives_the_same_inputs(plant):
     """The cvxpy re-solve (design path) and the direct solver (fast path) agree in the loop."""
-    if plant.name != "paper_like":
-        pytest.skip("one plant is enough")
     ref = make_reference("petal", speed=0.025, duration=4.0)
     runs = [
         run(

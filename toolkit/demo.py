@@ -323,29 +323,21 @@ def _fig2(data: dict[str, Any], out: Path) -> list[Path]:
 
 
 def _mpc(models: dict[str, Any], data: dict[str, Any], out: Path, quick: bool) -> dict[str, Any]:
-    from tendonkit.cosim import make_reference, open_loop, run
-    from tendonkit.mpc import LinearMPC, NoiseCovariance, NonlinearMPC
+    from tendonkit.cosim import make_controller, make_reference, open_loop, plot_tracking, run
 
     ref = make_reference("petal", duration=15.0 if quick else 40.0)
     plant = data["plant"]
-    noise = NoiseCovariance(measurement=2.5e-5, disturbance=1e-4)
+    # The tuned defaults of the co-simulation (tendonkit.controllers.DEFAULTS): Q = 1e4, R = 0.3,
+    # horizon 20, and each antagonistic pair's sum held at 2 x 105 N.
     results = {
         "open-loop kinematic": open_loop(plant, ref),
-        "linear MPC (N4SID)": run(
-            plant, ref, LinearMPC(models["n4sid"], R=1e-4, noise=noise), name="linear MPC"
-        ),
+        "linear MPC (N4SID)": run(plant, ref, make_controller(models["n4sid"]), name="linear MPC"),
         "nonlinear MPC (SINDYc)": run(
-            plant, ref, NonlinearMPC(models["sindyc"], R=1e-4, noise=noise), name="nonlinear MPC"
+            plant, ref, make_controller(models["sindyc"]), name="nonlinear MPC"
         ),
     }
     summaries = {k: r.summary() for k, r in results.items()}
-    figures = []
-    try:
-        from tendonkit.cosim import plot_tracking  # written with the mpc command
-
-        figures = [str(p) for p in plot_tracking(results, out / "figures")]
-    except ImportError:
-        figures = []
+    figures = [str(p) for p in plot_tracking(results, out / "figures")]
     return {"reference": ref.name, "results": summaries, "figures": figures}
 
 

@@ -35,17 +35,7 @@ def _with_input_blocks(ctx: Context, blocks: Sequence[Block]) -> Callable[[Datas
 def _select_and_finish(
     ctx: Context, effect: Any, cands: list[tuple[dict[str, Any], Callable[[Dataset], Model]]]
 ) -> Extension | None:
-    if not cands:
-        return None
-    params, model, score, _ = ctx.select(cands)
-    if model is None:
-        return None
-    return Extension(
-        model=model,
-        params=params,
-        description=effect.description,
-        train_gain=score - ctx.baseline_score,
-    )
+    return ctx.best_extension(cands, effect.description) if cands else None
 
 
 def _concentration(res: ResidualAnalysis, condition: str) -> dict[str, float]:

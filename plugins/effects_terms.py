@@ -64,17 +64,7 @@ class _TermEffect:
     def extend(self, ctx: Context) -> Extension | None:
         """Choose the candidate with the best training simulation fit."""
         cands = self.builders(ctx)
-        if not cands:
-            return None
-        params, model, score, _ = ctx.select(cands)
-        if model is None:
-            return None
-        return Extension(
-            model=model,
-            params=params,
-            description=self.description,
-            train_gain=score - ctx.baseline_score,
-        )
+        return ctx.best_extension(cands, self.description) if cands else None
 
 
 class CoulombFriction(_TermEffect):

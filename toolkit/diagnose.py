@@ -142,6 +142,22 @@ class Context:
             self._cache["baseline_score"] = self.score(self.baseline)
         return float(self._cache["baseline_score"])
 
+    def best_extension(
+        self,
+        candidates: Iterable[tuple[dict[str, Any], Callable[[Dataset], Model]]],
+        description: str,
+    ) -> Extension | None:
+        """The :class:`Extension` of the best candidate (:meth:`select`), or None."""
+        params, model, score, _ = self.select(candidates)
+        if model is None:
+            return None
+        return Extension(
+            model=model,
+            params=params,
+            description=description,
+            train_gain=score - self.baseline_score,
+        )
+
     def select(
         self, candidates: Iterable[tuple[dict[str, Any], Callable[[Dataset], Model]]]
     ) -> tuple[dict[str, Any], Model | None, float, list[dict[str, Any]]]:

@@ -3,7 +3,7 @@
 Everything here works on plain arrays; :mod:`tendonkit.plugins.n4sid` wraps it into the plugin.
 Memory is linear in the number of samples: the block-Hankel matrix is never formed (its Gram
 matrix is built from lagged products of the signals), and the simulation-error least squares
-runs over time chunks.
+runs over time chunks and never forms its regressor matrix.
 
 References
 ----------
@@ -22,11 +22,18 @@ from scipy import linalg
 
 FloatArray = NDArray[np.float64]
 
-#: Time samples per chunk in the simulation-error least squares (bounds the memory).
-CHUNK = 8192
-#: Block length of the block-recursive simulation (state recursion runs once per block);
-#: ``CHUNK`` must be a multiple of it.
-BLOCK = 32
+#: Time samples per chunk in the simulation-error least squares (bounds the memory); rounded
+#: down to whole blocks.
+CHUNK = 4096
+#: Samples per block in the simulation-error least squares: the dual states are computed at
+#: block starts only, and the regressors within a block follow from them by fixed matrices.
+BLOCK = 16
+#: Steps per group in the nested-group recursion of the block-start states.
+GROUP = 8
+#: Relative magnitude below which decaying responses are set to zero (avoids subnormals).
+TINY = 1e-100
+#: Entries of ``Σ_r Ψ ⊗ Ψ`` formed at once in the least squares (bounds the memory, 8 MB).
+G_ENTRIES = 1 << 20
 
 
 # -- block-Hankel Gram matrix and its LQ factor -------------------------------------------------
@@ -39,7 +46,9 @@ def hankel_gram(z: FloatArray, s: int) -> FloatArray:
     ``[(a, c), (b, d)]`` (block row major).  It is computed from the ``s`` lagged products
     ``Σ_t z[t]ᵀ z[t + d]`` over the whole record, corrected for the few samples each block row
     does not see, so the cost is ``O(N s m²)`` and the memory ``O(N m)``: the ``(s m) × N``
-    matrix ``H`` is never formed.
+    matrix ``H`` is never formed.  The lagged products come from two matrix products of the
+    record folded into rows of ``s`` samples (a view, no copy): row ``q`` with itself gives
+    the pairs of samples within a row, row ``q`` with row ``q + 1`` the pairs across rows.
 
     Parameters
     ----------
@@ -55,20 +64,43 @@ def hankel_gram(z: FloatArray, s: int) -> FloatArray:
     """
     N, m = z.shape
     j = N - s + 1
+    # lag products full[d] = Σ_{t < N-d} z[t] z[t+d]ᵀ from the folded record
+    nq = N // s
+    rows = np.ascontiguousarray(z[: nq * s]).reshape(nq, s * m)
+    last = np.zeros(s * m)  # the incomplete last row, zero-padded
+    last[: (N - nq * s) * m] = z[nq * s :].ravel()
+    same = rows.T @ rows + np.outer(last, last)  # [(a, c), (b, d)]: Σ_q z[qs+a, c] z[qs+b, d]
+    cross = rows[:-1].T @ rows[1:]  # Σ_q z[qs+a] z[(q+1)s+b]ᵀ, pairs across rows
+    if nq:
+        cross += np.outer(rows[-1], last)
+    same4, cross4 = same.reshape(s, m, s, m), cross.reshape(s, m, s, m)
+    full = np.empty((s, m, m))
+    for lag in range(s):
+        r = np.arange(s - lag)
+        full[lag] = same4[r, :, r + lag, :].sum(axis=0)
+        if lag:
+            r = np.arange(s - lag, s)
+            full[lag] += cross4[r, :, r + lag - s, :].sum(axis=0)
+    # block (a, a+d) sums t over [a, a + j): remove the head t < a and the tail t >= a + j,
+    # from the outer products of the first and of the last s - 1 samples.
+    head = np.zeros((s, s, m, m))  # Σ_{t < a}
+    np.cumsum(_lag_outers(z[: s - 1], s)[:-1], axis=0, out=head[1:])
+    tail = np.cumsum(_lag_outers(z[j:], s)[::-1], axis=0)[::-1]  # Σ_{t >= a} over t - j
+    a, d = np.nonzero(np.add.outer(np.arange(s), np.arange(s)) < s)
+    blk = full[d] - head[a, d] - tail[a, d]
     G = np.empty((s, m, s, m))
-    for d in range(s):
-        full = z[: N - d].T @ z[d:]  # Σ_{t < N-d} z[t] z[t+d]ᵀ
-        # block (a, a+d) sums t over [a, a + j); remove the head t < a and the tail t >= a + j.
-        head = np.zeros((m, m))
-        tail = z[j : N - d].T @ z[j + d :]
-        for a in range(s - d):
-            blk = full - head - tail
-            G[a, :, a + d, :] = blk
-            G[a + d, :, a, :] = blk.T
-            head += np.outer(z[a], z[a + d])
-            if a + j < N - d:
-                tail -= np.outer(z[a + j], z[a + j + d])
+    G[a, :, a + d, :] = blk
+    G[a + d, :, a, :] = blk.transpose(0, 2, 1)
     return G.reshape(s * m, s * m)
+
+
+def _lag_outers(seg: FloatArray, s: int) -> FloatArray:
+    """``O[t, d] = seg[t] seg[t+d]ᵀ`` for ``t, d < s``, zero where ``t + d`` is past the end."""
+    m = seg.shape[1]
+    pad = np.zeros((2 * s, m))
+    pad[: seg.shape[0]] = seg
+    lagged = np.lib.stride_tricks.sliding_window_view(pad, s, axis=0)[:s]  # [t, c, d]
+    return np.einsum("tc,tkd->tdck", pad[:s], lagged)
 
 
 def lq_factor(gram: FloatArray) -> FloatArray:
@@ -295,77 +327,204 @@ def kalman_gain(sub: Subspace, A: FloatArray) -> FloatArray | None:
 # -- B, D and x0 by least squares on the simulation error ------------------------------------------
 
 
-class _DualFilter:
-    """Block-recursive simulation of the dual states ``w_pj[k+1] = Aᵀ w_pj[k] + c_p u_j[k]``.
+def _flush(x: FloatArray, scale: float | None = None) -> FloatArray:
+    """Set the entries of ``x`` below ``TINY · scale`` in magnitude to zero (in place).
 
-    Within a block of ``BLOCK`` samples the response is one Toeplitz matrix product for all
-    outputs ``p`` and inputs ``j`` at once; the state is carried from block to block by one
-    ``(Aᵀ)^BLOCK`` product, so the Python loop runs ``N / BLOCK`` times instead of ``N``.
+    ``scale`` defaults to the sum of magnitudes of each column (last axis) of ``x``, so signals
+    of different sizes are flushed independently.  Decaying responses would otherwise reach
+    the subnormal range, where every product slows down by orders of magnitude; the values
+    change by less than about ``TINY`` relative.
+    """
+    mag = np.abs(x)
+    if scale is None:
+        flat = mag.reshape(-1, mag.shape[-1])
+        small = mag < TINY * (np.ones(flat.shape[0]) @ flat)
+    else:
+        small = mag < TINY * scale
+    if small.any():
+        np.copyto(x, 0.0, where=small)
+    return x
+
+
+def _powers(F: FloatArray, k: int) -> FloatArray:
+    """``F⁰ … Fᵏ`` as one ``(k + 1, n, n)`` array, flushed (see :func:`_flush`)."""
+    out = np.empty((k + 1, *F.shape))
+    out[0] = np.eye(F.shape[0])
+    for r in range(1, k + 1):
+        out[r] = _flush(F @ out[r - 1], 1.0)
+    return out
+
+
+class _Recursion:
+    """States of ``x[k+1] = F x[k] + e[k]`` for many steps at once, by nested groups of steps.
+
+    Within a group of ``g`` steps the states are one product with the lower block-triangular
+    Toeplitz matrix of ``F⁰ … F^(g-1)``, plus the free response of the group's first state;
+    the groups' first states obey the same recursion with ``F^g``, which the next level solves.
+    No Python loop runs over the steps, and no power above ``F^g`` of one level is formed.
+    The states of every level are flushed column by column (see :func:`_flush`).
     """
 
-    def __init__(self, A: FloatArray, C: FloatArray, block: int = BLOCK) -> None:
-        n, ny = A.shape[0], C.shape[0]
-        self.n, self.ny, self.block = n, ny, block
-        F = A.T
-        powers = np.empty((block + 1, n, n))
-        powers[0] = np.eye(n)
-        for r in range(1, block + 1):
-            powers[r] = F @ powers[r - 1]
-        self.powers = powers  # (Aᵀ)^r
-        imp = powers[:block] @ C.T  # (Aᵀ)^r Cᵀ: (block, n, ny)
-        T = np.zeros((block + 1, n, ny, block))  # T[r, :, :, s] = (Aᵀ)^(r-1-s) Cᵀ for s < r
-        for r in range(1, block + 1):
-            T[r, :, :, :r] = imp[r - 1 :: -1].transpose(1, 2, 0)
-        self.T = T.reshape((block + 1) * n * ny, block)
+    def __init__(self, F: FloatArray, group: int = GROUP) -> None:
+        self.group = group
+        self._F = [F]
+        self._tables: list[tuple[FloatArray, FloatArray]] = []
 
-    def run(self, u: FloatArray, w0: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """Dual states for ``k < len(u)`` and the state after the last block.
+    def _table(self, level: int) -> tuple[FloatArray, FloatArray]:
+        """``F_level⁰ … F_level^g`` and the ``((g+1) n, g n)`` Toeplitz matrix of one group."""
+        while len(self._tables) <= level:
+            F, g = self._F[-1], self.group
+            n = F.shape[0]
+            powers = _powers(F, g)
+            T = np.zeros((g + 1, n, g, n))  # T[r, :, s] = F^(r-1-s) for s < r
+            for r in range(1, g + 1):
+                T[r, :, :r] = powers[r - 1 :: -1].transpose(1, 0, 2)
+            self._tables.append((powers, T.reshape((g + 1) * n, g * n)))
+            self._F.append(powers[g])
+        return self._tables[level]
 
-        ``u`` is ``(N, nu)``; ``w0`` is ``(n, ny·nu)``.  Returns ``W`` of shape
-        ``(N, ny, nu, n)`` (``W[k, p, j] = w_pj[k]``) and the state after ``ceil(N / BLOCK)``
-        blocks, which is the state after ``N`` samples when ``N`` is a multiple of ``BLOCK``.
+    def run(self, E: FloatArray, x0: FloatArray, level: int = 0) -> FloatArray:
+        """States ``x[0] … x[K]``, shape ``(K + 1, n, q)``, for inputs ``E`` of shape ``(K, n, q)``."""
+        K, n, q = E.shape
+        g = self.group
+        powers, T = self._table(level)
+        ng = max(1, -(-K // g))
+        if ng * g != K:
+            E = np.concatenate([E, np.zeros((ng * g - K, n, q))])
+        Eg = E.reshape(ng, g, n, q).transpose(1, 2, 0, 3).reshape(g * n, ng * q)
+        forced = (T @ Eg).reshape(g + 1, n, ng, q)  # [r, i, group, :]
+        if ng == 1:
+            starts = np.stack([x0, powers[g] @ x0 + forced[g, :, 0]])
+        else:
+            starts = self.run(forced[g].transpose(1, 0, 2), x0, level + 1)
+        X = np.empty((ng * g + 1, n, q))
+        free = powers[:g].reshape(g * n, n) @ starts[:ng].transpose(1, 0, 2).reshape(n, ng * q)
+        inner = X[:-1].reshape(ng, g, n, q).transpose(1, 2, 0, 3)
+        np.add(free.reshape(g, n, ng, q), forced[:g], out=inner)
+        X[-1] = starts[ng]
+        return _flush(X[: K + 1])
+
+
+class _BlockRegressors:
+    """Normal equations of the simulation-error least squares of one record, block by block.
+
+    For output ``p`` and sample ``k = bL + r`` (block ``b`` of ``L = BLOCK`` samples) all
+    regressors are the entries of the ``(n+1) × (nu+1)`` matrix ``Ω = Ψ_pr Z_bp`` with::
+
+        Ψ_pr = [[(Aᵀ)ʳ, T_pr], [0, e_rᵀ]],    Z_bp = [[W_bp, v_bp], [U_b, 0]]
+
+    where ``W_bp`` (n × nu) holds the dual states ``w_pj`` at the block start, ``v_bp = (Aᵀ)^(bL)
+    c_p``, ``U_b`` (L × nu) the block's inputs, and ``T_pr[:, s] = (Aᵀ)^(r-1-s) c_p`` for
+    ``s < r`` (zero otherwise).  ``Ω[:n, :nu]`` are the ``B`` regressors ``w_pj[k]``,
+    ``Ω[:n, nu]`` the ``x0`` regressors ``(Aᵀ)ᵏ c_p`` and ``Ω[n, :nu]`` the ``D`` regressors
+    ``u[k]``.  So ``Σ_br Ω ⊗ Ω = (Σ_r Ψ_pr ⊗ Ψ_pr) (Σ_b Z_bp ⊗ Z_bp)``: the samples enter
+    only through the Gram matrix of one short row per block and output (block-start states,
+    the block's inputs and outputs), and the ``N ny × n nu`` regressor matrix is never formed.
+    The block-start states come from :class:`_Recursion` with ``(Aᵀ)^L``.
+    """
+
+    def __init__(self, A: FloatArray, C: FloatArray, nu: int, block: int = BLOCK) -> None:
+        n, ny, L = A.shape[0], C.shape[0], block
+        self.n, self.ny, self.nu, self.block, self.C = n, ny, nu, L, C
+        P = _powers(A.T, L)
+        imp = P[:L] @ C.T  # (Aᵀ)ʳ Cᵀ: (L, n, ny)
+        m1, m2, w = n + 1, n + L, nu + 1
+        Psi = np.zeros((ny, L, m1, m2))
+        Psi[:, :, :n, :n] = P[:L]
+        for r in range(1, L):
+            Psi[:, r, :n, n : n + r] = imp[r - 1 :: -1].transpose(2, 1, 0)
+        Psi[:, np.arange(L), n, n + np.arange(L)] = 1.0
+        self.Psi = Psi
+        self.Pt = np.ascontiguousarray(Psi.transpose(0, 2, 3, 1))  # [p, i, a, r]
+        self._G: dict[int, FloatArray] = {}
+        self.PsiT = Psi.transpose(0, 1, 3, 2).reshape(ny, L * m2, m1)  # [(r, a), i]
+        # block-end forced dual states: E[b, i, p, j] = Σ_s (Aᵀ)^(L-1-s) c_p u[bL + s, j]
+        Kend = np.zeros((L, nu, n, ny, w))
+        Kend[:, np.arange(nu), :, :, np.arange(nu)] = imp[::-1]
+        self.Kend = Kend.reshape(L * nu, n * ny * w)
+        self.rec = _Recursion(P[L])
+        # one row per block and output: [states (n, nu+1), inputs (L, nu), outputs (L), 0]
+        self.uoff, self.yoff, self.width = n * w, n * w + L * nu, n * w + L * nu + L + 1
+        ia, ja = np.arange(m2)[:, None], np.arange(w)[None, :]
+        self.Ia = np.where(  # column of Z_bp[a, j] in the row
+            ia < n,
+            np.minimum(ia, n - 1) * w + ja,
+            np.where(ja < nu, self.uoff + (ia - n) * nu + ja, self.width - 1),
+        )
+
+    def _weights(self, p: int, i0: int, i1: int) -> FloatArray:
+        """Rows ``i0 <= i < i1`` of ``G_p = Σ_r Ψ_pr ⊗ Ψ_pr``, indexed ``[(i, i'), (a, a')]``.
+
+        The whole matrix is kept for the next experiment; when it has more than
+        ``G_ENTRIES`` entries it is formed a few rows at a time and not kept.
         """
-        N, nu = u.shape
-        n, ny, L = self.n, self.ny, self.block
-        nb = -(-N // L)
-        q = ny * nu
-        up = np.zeros((nb * L, nu))
-        up[:N] = u
-        ub = up.reshape(nb, L, nu).transpose(1, 0, 2).reshape(L, nb * nu)
-        forced = (self.T @ ub).reshape(L + 1, n, ny, nb, nu)  # [r, i, p, b, j]
-        starts = np.empty((nb + 1, n, q))
-        starts[0] = w0
-        ends = forced[L].transpose(2, 0, 1, 3).reshape(nb, n, q)
-        FL = self.powers[L]
-        for b in range(nb):
-            starts[b + 1] = FL @ starts[b] + ends[b]
-        # free response (Aᵀ)^r starts[b] of every block, as one product
-        free = self.powers[:L].reshape(L * n, n) @ starts[:nb].transpose(1, 0, 2).reshape(n, nb * q)
-        W = free.reshape(L, n, nb, ny, nu) + forced[:L].transpose(0, 1, 3, 2, 4)
-        W = W.transpose(2, 0, 3, 4, 1).reshape(nb * L, ny, nu, n)  # [k, p, j, i]
-        return W[:N], starts[nb]
+        whole = i0 == 0 and i1 == self.n + 1
+        if whole and p in self._G:
+            return self._G[p]
+        Pt = self.Pt[p]
+        G = np.matmul(Pt[i0:i1, None], Pt[None].swapaxes(-1, -2))  # [i, i', a, a']
+        G = G.reshape((i1 - i0) * Pt.shape[0], -1)
+        if whole:
+            self._G[p] = G
+        return G
 
-    def free(self, v0: FloatArray, N: int) -> tuple[FloatArray, FloatArray]:
-        """Free response ``v[k] = (Aᵀ)ᵏ v0`` for ``k < N`` (shape ``(N,) + v0.shape``) and ``v[N']``.
+    def normal_equations(
+        self, u: FloatArray, y: FloatArray, with_x0: bool
+    ) -> tuple[FloatArray, FloatArray]:
+        """``Σ Ω ⊗ Ω`` and ``Σ Ω y_p`` per output: shapes ``(ny, m, m)`` and ``(ny, m)``.
 
-        ``N'`` is ``N`` rounded up to a multiple of ``BLOCK``.  Once the response has decayed
-        below ``1e-50`` of ``v0`` it is set to exactly zero: floating-point subnormals would
-        slow every later product down by orders of magnitude.
+        ``m = (n+1)(nu+1)`` indexes ``Ω`` row-major.  The record is processed ``CHUNK``
+        samples at a time; the last incomplete block is added sample by sample.
         """
-        n, L = self.n, self.block
-        nb = -(-N // L)
-        q = v0.shape[1]
-        starts = np.zeros((nb + 1, n, q))
-        starts[0] = v0
-        tiny = 1e-50 * float(np.max(np.abs(v0), initial=0.0))
-        for b in range(nb):
-            starts[b + 1] = self.powers[L] @ starts[b]
-            if not np.max(np.abs(starts[b + 1])) > tiny:  # negligible: stop before subnormals
-                starts[b + 1] = 0.0
-                break
-        V = self.powers[:L].reshape(L * n, n) @ starts[:nb].transpose(1, 0, 2).reshape(n, nb * q)
-        V = V.reshape(L, n, nb, q).transpose(2, 0, 1, 3).reshape(nb * L, n, q)
-        return V[:N], starts[nb]
+        n, ny, nu, L = self.n, self.ny, self.nu, self.block
+        m1, m2, w = n + 1, n + L, nu + 1
+        N = u.shape[0]
+        state = np.zeros((n, ny, w))
+        if with_x0:
+            state[:, :, nu] = self.C.T
+        n_blocks = N // L
+        per = max(1, CHUNK // L)
+        rows = np.zeros((min(per, n_blocks), self.width))  # the last column stays zero
+        Xi = np.zeros((ny, self.width, self.width))
+        uoff, yoff = self.uoff, self.yoff
+        for b0 in range(0, n_blocks, per):
+            nb = min(per, n_blocks - b0)
+            k0, k1 = b0 * L, (b0 + nb) * L
+            ub = u[k0:k1].reshape(nb, L * nu)
+            E = (ub @ self.Kend).reshape(nb, n, ny * w)
+            X = self.rec.run(E, state.reshape(n, ny * w)).reshape(nb + 1, n, ny, w)
+            Z = rows[:nb]
+            Z[:, uoff:yoff] = ub
+            for p in range(ny):
+                Z[:, :uoff] = X[:nb, :, p].reshape(nb, uoff)
+                Z[:, yoff:-1] = y[k0:k1, p].reshape(nb, L)
+                Xi[p] += Z.T @ Z  # a symmetric rank-k update (BLAS syrk)
+            state = X[nb]
+        gram = np.empty((ny, m1 * w, m1 * w))
+        cross = np.empty((ny, m1 * w))
+        step = max(1, G_ENTRIES // (m1 * m2 * m2))  # rows i of G_p per product
+        g = np.empty((m1, m1, w, w))
+        for p in range(ny):
+            # Σ_br Ω[i, j] Ω[i', j'] = Σ_aa' G_p[i, i', a, a'] Y[a, a', j, j']
+            col = self.Ia
+            Y = Xi[p][col[:, None, :, None], col[None, :, None, :]]  # Σ_b Z[a, j] Z[a', j']
+            Y = Y.reshape(m2 * m2, w * w)
+            for i0 in range(0, m1, step):
+                G = self._weights(p, i0, min(m1, i0 + step))
+                g[i0 : i0 + step] = (G @ Y).reshape(-1, m1, w, w)
+            gram[p] = g.transpose(0, 2, 1, 3).reshape(m1 * w, m1 * w)
+            K = Xi[p][yoff : yoff + L, col]  # Σ_b y_p[bL + r] Z[a, j]: [r, a, j]
+            cross[p] = (K.reshape(L * m2, w).T @ self.PsiT[p]).T.reshape(-1)
+        k0 = n_blocks * L
+        if k0 < N:  # incomplete last block: its regressors directly
+            Z = np.zeros((m2, w))
+            Z[n : n + N - k0, :nu] = u[k0:]
+            for p in range(ny):
+                Z[:n] = state[:, p]
+                Om = (self.Psi[p, : N - k0] @ Z).reshape(N - k0, m1 * w)
+                gram[p] += Om.T @ Om
+                cross[p] += Om.T @ y[k0:, p]
+        return gram, cross
 
 
 def fit_input_matrices(
@@ -381,8 +540,9 @@ def fit_input_matrices(
     With ``A`` and ``C`` fixed the simulated output is linear in ``B``, ``D`` and ``x0``:
     ``y_p[k] = Σ_j w_pj[k]ᵀ b_j + Σ_j D_pj u_j[k] + v_p[k]ᵀ x0`` where ``w_pj`` is the state of
     the dual system ``w[k+1] = Aᵀ w[k] + c_p u_j[k]`` (``w[0] = 0``) and ``v_p[k] = (Aᵀ)ᵏ c_p``.
-    The normal equations are accumulated over time chunks (memory independent of the record
-    length), equilibrated and solved by a rank-revealing (SVD) least-squares solver.
+    The normal equations are accumulated block by block (:class:`_BlockRegressors`; memory
+    independent of the record length), equilibrated and solved by a rank-revealing (SVD)
+    least-squares solver.
 
     Parameters
     ----------
@@ -408,33 +568,23 @@ def fit_input_matrices(
     n_par = n_shared + nx * len(experiments)
     M = np.zeros((n_par, n_par))
     rhs = np.zeros(n_par)
-    filt = _DualFilter(A, C)
+    reg = _BlockRegressors(A, C, nu)
     for e, (u, y) in enumerate(experiments):
-        N = u.shape[0]
-        w = np.zeros((n, ny * nu))
-        v = C.T.copy()  # (Aᵀ)ᵏ Cᵀ: the x0 regressors, decaying for a stable A
-        for k0 in range(0, N, CHUNK):
-            uc, yc = u[k0 : k0 + CHUNK], y[k0 : k0 + CHUNK]
-            Nc = uc.shape[0]
-            W, w = filt.run(uc, w)
-            # one regression row per (output p, sample k): columns b_j (j, i), D (p, j), x0
-            parts = [W.transpose(1, 0, 2, 3).reshape(ny * Nc, nB)]
-            cols = [np.arange(nB)]
+        gram, cross = reg.normal_equations(
+            np.ascontiguousarray(u, dtype=float), np.ascontiguousarray(y, dtype=float), bool(nx)
+        )
+        for p in range(ny):
+            # parameter of every entry of Ω: B[i, j] at j n + i, x0_i, D[p, j]; -1 for none
+            pos = np.full((n + 1, nu + 1), -1)
+            pos[:n, :nu] = np.arange(nu)[None, :] * n + np.arange(n)[:, None]
+            if nx:
+                pos[:n, nu] = n_shared + nx * e + np.arange(n)
             if nD:
-                XD = np.zeros((ny, Nc, ny, nu))
-                for p in range(ny):
-                    XD[p, :, p] = uc
-                parts.append(XD.reshape(ny * Nc, nD))
-                cols.append(nB + np.arange(nD))
-            if nx and np.any(v):
-                V, v = filt.free(v, Nc)
-                parts.append(V.transpose(2, 0, 1).reshape(ny * Nc, n))
-                cols.append(n_shared + nx * e + np.arange(nx))
-            Phi = np.hstack(parts) if len(parts) > 1 else parts[0]
-            idx = np.concatenate(cols)
-            yv = yc.T.reshape(-1)
-            M[np.ix_(idx, idx)] += Phi.T @ Phi
-            rhs[idx] += Phi.T @ yv
+                pos[n, :nu] = nB + p * nu + np.arange(nu)
+            keep = pos.ravel() >= 0
+            idx = pos.ravel()[keep]
+            M[np.ix_(idx, idx)] += gram[p][np.ix_(keep, keep)]
+            rhs[idx] += cross[p][keep]
     d = np.sqrt(np.diag(M))
     d[d == 0] = 1.0
     theta = linalg.lstsq(M / d[:, None] / d[None, :], rhs / d, check_finite=False, cond=1e-13)[0]

@@ -28,8 +28,11 @@ Algorithm (numerics in :mod:`tendonkit.plugins._subspace`):
 6. ``B``, ``D`` (zero unless ``feedthrough``) and the initial state of every experiment are
    fitted by linear least squares on the *simulation* error with ``A`` and ``C`` fixed.  This
    gives a much better free-run fit than the subspace ``B``, ``D`` and is still linear: the
-   regressors are the states of the dual system ``(Aᵀ, c_p)`` driven by each input, computed
-   by a block-recursive simulation, and the normal equations are accumulated over time chunks.
+   regressors are the states of the dual system ``(Aᵀ, c_p)`` driven by each input.  They are
+   never formed: within a block of 16 samples they are fixed linear functions of the dual
+   state at the block start and the block's inputs, so the normal equations follow from the
+   Gram matrix of one short row per block (block-start states by a nested-block recursion,
+   inputs, outputs), accumulated over time chunks.
 
 The initial state fitted for the *first* experiment is stored as ``x0`` (used by
 ``simulate(..., initial="model")``); ``initial="estimate"`` re-estimates it from any data.
@@ -205,7 +208,10 @@ def _gram(
     m, s = nu + ny, 2 * i
     G = np.zeros((s * m, s * m))
     for u, y in exps:
-        G += sub.hankel_gram(np.hstack([u / su, y / sy]), s)
+        z = np.empty((u.shape[0], m))  # scaled signals side by side, without temporaries
+        np.divide(u, su, out=z[:, :nu])
+        np.divide(y, sy, out=z[:, nu:])
+        G += sub.hankel_gram(z, s)
     a = np.arange(s)[:, None] * m
     order = np.concatenate([(a + np.arange(nu)).ravel(), (a + nu + np.arange(ny)).ravel()])
     return G[np.ix_(order, order)]

@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import contextvars
 import dataclasses
+import functools
 from collections.abc import Iterator
 from importlib import metadata
 from typing import Any
@@ -42,9 +43,15 @@ def one_blas_thread() -> contextlib.AbstractContextManager[object]:
     little, and on a busy two-core machine waiting for it made identification 5–10 times slower
     (measured by the n4sid benchmark: 0.41 s with one thread, 2.1 s with two at 200 000 samples).
     """
-    from threadpoolctl import threadpool_limits
+    return _threadpools().limit(limits=1, user_api="blas")
 
-    return threadpool_limits(limits=1, user_api="blas")
+
+@functools.cache
+def _threadpools() -> Any:
+    """threadpoolctl's view of the loaded BLAS libraries (scanning them costs ~1 ms: once)."""
+    from threadpoolctl import ThreadpoolController
+
+    return ThreadpoolController()
 
 
 def signals(names: tuple[str, ...], units: dict[str, str]) -> tuple[Signal, ...]:

@@ -174,12 +174,77 @@ def test_stabilize_reflects_unstable_eigenvalues_only():
     assert np.allclose(lam, [-0.5, 0.5, 0.8])
 
 
-def test_gram_matrix_equals_that_of_the_explicit_hankel_matrix():
-    z = np.random.default_rng(3).normal(size=(200, 3))
-    s = 6
+@pytest.mark.parametrize(("N", "s"), [(200, 6), (7, 6), (12, 6), (13, 2), (1001, 20)])
+def test_gram_matrix_equals_that_of_the_explicit_hankel_matrix(N, s):
+    # lengths a multiple of s, one more, and the shortest record (s + 1 samples)
+    z = np.random.default_rng(3).normal(size=(N, 3))
     j = z.shape[0] - s + 1
     H = np.vstack([z[a : a + j].T for a in range(s)])
     assert np.allclose(_subspace.hankel_gram(z, s), H @ H.T, rtol=1e-12, atol=1e-10)
+
+
+def _explicit_regressors(A, C, u, with_x0):
+    """Ω[k, p] of the B/D/x0 least squares by a plain sample loop (the definition)."""
+    n, ny, nu, N = A.shape[0], C.shape[0], u.shape[1], u.shape[0]
+    Om = np.zeros((N, ny, n + 1, nu + 1))
+    w = np.zeros((ny, n, nu))  # dual states w_pj
+    v = C.copy() if with_x0 else np.zeros_like(C)  # rows (Aᵀ)ᵏ c_p
+    for k in range(N):
+        Om[k, :, :n, :nu] = w
+        Om[k, :, :n, nu] = v
+        Om[k, :, n, :nu] = u[k]
+        w = np.einsum("ab,pbj->paj", A.T, w) + C[:, :, None] * u[k][None, None, :]
+        v = v @ A
+    return Om
+
+
+@pytest.mark.parametrize("with_x0", [True, False])
+def test_block_normal_equations_equal_those_of_the_explicit_regressors(monkeypatch, with_x0):
+    # several chunks, a chunk end inside the record and an incomplete last block
+    monkeypatch.setattr(_subspace, "CHUNK", 2 * _subspace.BLOCK)
+    rng = np.random.default_rng(7)
+    ref = _ss(random_state_space(3, 2, 2, seed=7))
+    N = 7 * _subspace.BLOCK + 5
+    u, y = rng.normal(size=(N, 2)), rng.normal(size=(N, 2))
+    gram, cross = _subspace._BlockRegressors(ref.A, ref.C, 2).normal_equations(u, y, with_x0)
+    Om = _explicit_regressors(ref.A, ref.C, u, with_x0).reshape(N, 2, -1)
+    for p in range(2):
+        expected = Om[:, p].T @ Om[:, p]
+        # Tolerance: both are sums of ~N products of O(1) numbers; measured 1e-15 relative.
+        assert np.allclose(gram[p], expected, rtol=1e-11, atol=1e-11 * np.abs(expected).max())
+        assert np.allclose(cross[p], Om[:, p].T @ y[:, p], rtol=1e-11, atol=1e-10)
+
+
+def test_block_normal_equations_do_not_depend_on_how_the_weights_are_split(monkeypatch):
+    rng = np.random.default_rng(8)
+    ref = _ss(random_state_space(4, 2, 2, seed=8))
+    u, y = rng.normal(size=(500, 2)), rng.normal(size=(500, 2))
+    whole = _subspace._BlockRegressors(ref.A, ref.C, 2).normal_equations(u, y, True)
+    monkeypatch.setattr(_subspace, "G_ENTRIES", 1)  # one row of Σ Ψ ⊗ Ψ at a time
+    split = _subspace._BlockRegressors(ref.A, ref.C, 2).normal_equations(u, y, True)
+    for a, b in zip(whole, split):
+        assert np.allclose(a, b, rtol=1e-13, atol=1e-12)
+
+
+@pytest.mark.parametrize("K", [1, 7, 8, 9, 64, 1000])
+def test_nested_group_recursion_matches_the_step_by_step_loop(K):
+    rng = np.random.default_rng(K)
+    F = 0.9 * np.linalg.qr(rng.normal(size=(3, 3)))[0]
+    E, x0 = rng.normal(size=(K, 3, 2)), rng.normal(size=(3, 2))
+    X = _subspace._Recursion(F, group=8).run(E, x0)
+    x = x0.copy()
+    assert np.allclose(X[0], x0)
+    for k in range(K):
+        x = F @ x + E[k]
+        assert np.allclose(X[k + 1], x, rtol=1e-12, atol=1e-12)
+
+
+def test_decaying_responses_are_flushed_before_they_become_subnormal():
+    # a fast pole decays below 1e-308 within 300 steps; subnormal numbers slow BLAS down
+    E = np.zeros((5000, 2, 1))
+    X = _subspace._Recursion(np.diag([0.05, 0.5]), group=8).run(E, np.ones((2, 1)))
+    assert np.all((X == 0) | (np.abs(X) >= np.finfo(float).tiny))
+    assert X[-1, 0, 0] == 0 and X[20, 0, 0] == pytest.approx(0.05**20, rel=1e-12)
 
 
 def test_block_simulation_matches_the_sample_loop_across_chunks(monkeypatch):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -10,8 +11,21 @@ import pytest
 from tendonkit.dataset import Dataset, write_csv
 from tendonkit.testsystems import random_state_space, simulate_truth
 
-SHARED = Path(__file__).resolve().parents[2] / "shared"
+#: The workplace's shared folder beside the repository (CI provides it); TENDONKIT_SHARED
+#: points elsewhere.  Tests that need it fail, never skip, when it is missing.
+SHARED = Path(os.environ.get("TENDONKIT_SHARED", Path(__file__).resolve().parents[2] / "shared"))
 REAL_DATA = SHARED / "data" / "real"
+
+
+@pytest.fixture
+def real_data() -> Path:
+    """The real benchmark data folder; a clear failure when it is not there."""
+    if not REAL_DATA.is_dir():
+        pytest.fail(
+            f"The real benchmark data are not at {REAL_DATA}: clone the repository beside the "
+            "shared/ folder (as CI does) or set TENDONKIT_SHARED to its path."
+        )
+    return REAL_DATA
 
 
 @pytest.fixture(scope="session")

@@ -162,14 +162,17 @@ def simulate(
         )
     ub = _apply_blocks(model.input_blocks, model.input_names, u)
     rep = model.representation
-    if isinstance(rep, StateSpace) and rep.terms:
-        ys = _sim_ss_terms(model, rep, ub, y, initial)
-    elif isinstance(rep, StateSpace):
-        ys = _sim_ss(rep, ub, y, initial)
-    elif isinstance(rep, ARX):
-        ys = _sim_arx(model, rep, ub, y, initial)
-    else:
-        ys = _sim_sparse(model, rep, ub, y, initial)
+    # A diverging simulation overflows on its way to NaN; that is reported through the NaN
+    # outputs (and a fit of -inf), not through floating-point warnings.
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        if isinstance(rep, StateSpace) and rep.terms:
+            ys = _sim_ss_terms(model, rep, ub, y, initial)
+        elif isinstance(rep, StateSpace):
+            ys = _sim_ss(rep, ub, y, initial)
+        elif isinstance(rep, ARX):
+            ys = _sim_arx(model, rep, ub, y, initial)
+        else:
+            ys = _sim_sparse(model, rep, ub, y, initial)
     if not np.all(np.isfinite(ys)):
         bad = int(np.argmax(~np.all(np.isfinite(ys), axis=1)))
         ys[bad:] = np.nan

@@ -22,10 +22,7 @@ from tendonkit.dataset import Dataset, Experiment
 from tendonkit.diagnose import Diagnosis, diagnose
 from tendonkit.simulate import simulate
 
-pytestmark = [
-    pytest.mark.slow,
-    pytest.mark.skipif(not REAL_DATA.is_dir(), reason="shared/data/real is not available"),
-]
+pytestmark = [pytest.mark.slow, pytest.mark.usefixtures("real_data")]
 
 
 def _rmse(model, data: Dataset, skip: int) -> float:

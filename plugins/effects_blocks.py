@@ -49,16 +49,37 @@ class InputDelay:
     cause = "input_delay"
     description = "Input delay: every input reaches the system d samples later."
     max_delay = 8
+    #: Fractions of a sample tried around the best whole delay.
+    fractions = (-0.75, -0.5, -0.25, 0.25, 0.5, 0.75)
 
     def extend(self, ctx: Context) -> Extension | None:
-        """Try extra delays 1..max_delay samples on every input."""
-        cands = []
-        for d in range(1, self.max_delay + 1):
+        """Extra delays of 1..max_delay samples on every input, then fractions around the best.
+
+        A physical delay is rarely a whole number of samples; a fraction ``α`` of a sample
+        on a zero-order-held input is the two-tap average ``(1-α) u[k-n] + α u[k-n-1]``
+        (:func:`tendonkit.simulate.fractional_delay`).  Without it, a lag that rounds off
+        the same edge can fit a 2.7-sample delay better than 2 or 3 whole samples.
+        """
+
+        def candidate(d: float) -> tuple[dict[str, Any], Callable[[Dataset], Model]]:
             blocks = [Block("delay", n, {"samples": float(d)}) for n in ctx.train.inputs]
-            cands.append(
-                ({"samples": d, "seconds": d * ctx.train.dt}, _with_input_blocks(ctx, blocks))
-            )
-        return _select_and_finish(ctx, self, cands)
+            params = {"samples": d, "seconds": d * ctx.train.dt}
+            return params, _with_input_blocks(ctx, blocks)
+
+        whole = ctx.select([candidate(d) for d in range(1, self.max_delay + 1)])
+        if whole[1] is None:
+            return None
+        best_d = whole[0]["samples"]
+        fractions = [best_d + f for f in self.fractions if best_d + f > 0]
+        frac = ctx.select([candidate(d) for d in fractions])
+        params, model, score = whole[:3] if frac[2] <= whole[2] else frac[:3]
+        assert model is not None
+        return Extension(
+            model=model,
+            params=params,
+            description=self.description,
+            train_gain=score - ctx.baseline_score,
+        )
 
     def signature(
         self, ctx: Context, baseline: Model, valid: Dataset, res: ResidualAnalysis

@@ -21,8 +21,9 @@ from tendonkit.hookspecs import hookimpl
 from tendonkit.manager import effects, identifiers
 from tendonkit.metrics import fit, fit_table
 from tendonkit.mpc import InputTarget, LinearMPC, NoiseCovariance, NonlinearMPC, StepResult
+from tendonkit.predict import predict
 from tendonkit.schema import ARX, Block, Model, Provenance, Signal, SparseMap, StateSpace
-from tendonkit.simulate import predict, simulate, simulate_dataset
+from tendonkit.simulate import simulate, simulate_dataset
 from tendonkit.terms import Factor, Term
 
 __version__ = "0.1.0"

@@ -41,6 +41,11 @@ def nonlinear_problems(model: Model) -> list[str]:
                 f"input block {b.kind!r} on {b.signal!r} is not supported by the MPC; only "
                 "'delay' input blocks are."
             )
+        elif float(b.params["samples"]) != int(b.params["samples"]):
+            problems.append(
+                f"delay block on {b.signal!r} has a fractional delay ({b.params['samples']} "
+                "samples); the nonlinear MPC takes whole-sample delays."
+            )
     for b in model.output_blocks:
         problems.append(f"output block {b.kind!r} on {b.signal!r} is not supported by the MPC.")
     return problems

@@ -166,7 +166,8 @@ def cmd_identify(args: argparse.Namespace) -> int:
 def cmd_simulate(args: argparse.Namespace) -> int:
     """Simulate a model on the inputs of a CSV file and write its outputs as CSV."""
     from tendonkit.dataset import Dataset, write_csv
-    from tendonkit.simulate import predict, simulate
+    from tendonkit.predict import predict
+    from tendonkit.simulate import simulate
 
     problems: list[str] = []
     model = _load_model(args.model, problems)

@@ -15,8 +15,9 @@ import numpy as np
 from tendonkit.dataset import Dataset
 from tendonkit.errors import DataError
 from tendonkit.metrics import FitRow, fit, fit_table
+from tendonkit.predict import predict
 from tendonkit.schema import Model
-from tendonkit.simulate import predict, simulate
+from tendonkit.simulate import simulate
 
 
 def score(

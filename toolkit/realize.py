@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from typing import Any
+
 import numpy as np
 
 from tendonkit.errors import SchemaError
@@ -53,27 +56,38 @@ def arx_to_state_space(rep: ARX, nu: int) -> StateSpace:
     return StateSpace(A=A, B=B, C=C, D=D)
 
 
-def add_input_delays(ss: StateSpace, delays: list[int]) -> StateSpace:
-    """Prepend integer input delays (samples per input) as shift-register states."""
+def add_input_delays(ss: StateSpace, delays: Sequence[Any]) -> StateSpace:
+    """Prepend input delays as shift-register states.
+
+    ``delays[m]`` is input m's delay in samples (fractional allowed, see
+    :func:`tendonkit.simulate.fractional_delay`) or its FIR taps ``v[k] = Σ_i taps[i] u[k-i]``.
+    """
+    from tendonkit.simulate import delay_taps
+
+    taps = [
+        np.atleast_1d(np.asarray(d, dtype=float)) if np.ndim(d) else delay_taps(float(d))  # type: ignore[arg-type]
+        for d in delays
+    ]
     nu = ss.B.shape[1]
-    total = sum(delays)
-    if total == 0:
+    lengths = [len(t) - 1 for t in taps]  # registers per input
+    total = sum(lengths)
+    if total == 0 and all(t[0] == 1.0 for t in taps):
         return ss
     n = ss.A.shape[0]
-    # delay states: for input m, chain of delays[m] registers; last register feeds the plant.
+    # delay states: for input m a chain of lengths[m] registers holding u[k-1], ..., u[k-L].
     Ad = np.zeros((total, total))
     Bd = np.zeros((total, nu))
-    Cd = np.zeros((nu, total))  # delayed input as function of delay state
+    Cd = np.zeros((nu, total))  # delayed input as a function of the delay states
     Dd = np.zeros((nu, nu))
     pos = 0
-    for m, d in enumerate(delays):
+    for m, (t, d) in enumerate(zip(taps, lengths, strict=True)):
+        Dd[m, m] = t[0]
         if d == 0:
-            Dd[m, m] = 1.0
             continue
         Bd[pos, m] = 1.0
         for r in range(1, d):
             Ad[pos + r, pos + r - 1] = 1.0
-        Cd[m, pos + d - 1] = 1.0
+        Cd[m, pos : pos + d] = t[1:]
         pos += d
     A = np.block([[ss.A, ss.B @ Cd], [np.zeros((total, n)), Ad]])
     B = np.vstack([ss.B @ Dd, Bd])
@@ -101,7 +115,10 @@ def to_state_space(model: Model) -> StateSpace:
         ss = arx_to_state_space(rep, nu)
     else:  # pragma: no cover - is_linear excludes it
         raise SchemaError(f"{rep.kind} has no state-space form.")
-    delays = [0] * nu
+    from tendonkit.simulate import delay_taps
+
+    taps = [np.ones(1) for _ in range(nu)]
     for b in model.input_blocks:
-        delays[model.input_names.index(b.signal)] += int(b.params["samples"])
-    return add_input_delays(ss, delays)
+        m = model.input_names.index(b.signal)
+        taps[m] = np.convolve(taps[m], delay_taps(float(b.params["samples"])))
+    return add_input_delays(ss, taps)

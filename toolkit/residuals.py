@@ -194,7 +194,8 @@ def analyse(
     ResidualAnalysis
     """
     from tendonkit.metrics import fit
-    from tendonkit.simulate import _aligned, predict, simulate
+    from tendonkit.predict import predict
+    from tendonkit.simulate import _aligned, simulate
 
     data = _aligned(model, data)
     res, one, us, ys = [], [], [], []

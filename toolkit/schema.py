@@ -58,7 +58,9 @@ class Block:
 
     Kinds and parameters (see :data:`BLOCK_KINDS`):
 
-    - ``delay``: ``samples`` (integer >= 0);
+    - ``delay``: ``samples`` >= 0; with ``n = floor(samples)`` and ``α = samples - n``,
+      ``v[k] = (1-α) s[k-n] + α s[k-n-1]`` (a fractional part is the frame average of a
+      zero-order-held signal delayed by a fraction of a sample);
     - ``dead_zone``: ``threshold`` >= 0 around ``center``: ``v = sign(s-c)·max(|s-c|-th, 0) + c``;
     - ``saturation``: clip to [``lower``, ``upper``];
     - ``play``: backlash/play operator of half-width ``width`` (stateful, starts at the signal);
@@ -468,8 +470,8 @@ def _check_block(where: str, b: Block, allowed: set[str]) -> list[str]:
     vals = b.params
     if not all(np.isfinite(float(v)) for v in vals.values()):
         p.append(f"{where}: parameters must be finite, found {vals}.")
-    elif b.kind == "delay" and (int(vals["samples"]) != vals["samples"] or vals["samples"] < 0):
-        p.append(f"{where}: delay samples must be an integer >= 0, found {vals['samples']}.")
+    elif b.kind == "delay" and not vals["samples"] >= 0:
+        p.append(f"{where}: delay samples must be >= 0, found {vals['samples']}.")
     elif (
         b.kind in ("dead_zone", "play") and min(vals.get("threshold", 0), vals.get("width", 0)) < 0
     ):

@@ -1,4 +1,4 @@
-"""Free-run simulation and k-step-ahead prediction for every representation of the schema.
+"""Free-run simulation for every representation of the schema (prediction: :mod:`tendonkit.predict`).
 
 Initial-state policy (``initial=``):
 
@@ -15,6 +15,7 @@ simulated outputs after them.
 
 from __future__ import annotations
 
+import math
 from typing import Any, Literal
 
 import numpy as np
@@ -33,10 +34,7 @@ def apply_block(block: Block, s: FloatArray) -> FloatArray:
     """Apply one block to a signal sequence ``s`` (n,) and return the new sequence."""
     p = block.params
     if block.kind == "delay":
-        d = int(p["samples"])
-        if d == 0:
-            return s.copy()
-        return np.concatenate([np.full(min(d, len(s)), s[0]), s[: max(len(s) - d, 0)]])
+        return fractional_delay(s, float(p["samples"]))
     if block.kind == "dead_zone":
         c, th = p["center"], p["threshold"]
         z = s - c
@@ -54,6 +52,40 @@ def apply_block(block: Block, s: FloatArray) -> FloatArray:
     if block.kind == "rate_limit":
         return rate_limiter(s, p["rate"])
     raise SimulationError(f"Unknown block kind {block.kind!r}.")  # pragma: no cover
+
+
+def split_delay(samples: float) -> tuple[int, float]:
+    """Whole samples ``n`` and fraction ``α`` of a delay (``α`` rounded to 1e-12 to 0 or 1)."""
+    n = math.floor(samples + 1e-12)
+    a = samples - n
+    return n, (0.0 if a < 1e-12 else a)
+
+
+def fractional_delay(s: FloatArray, samples: float) -> FloatArray:
+    """``v[k] = (1-α) s[k-n] + α s[k-n-1]`` (``n``, ``α`` from :func:`split_delay`).
+
+    The signal before the first sample is ``s[0]``.  A fractional delay of a zero-order-held
+    signal, averaged over the frame, is exactly this two-tap filter.
+    """
+    n, a = split_delay(samples)
+    if n == 0 and a == 0:
+        return s.copy()
+    N = len(s)
+    pad = np.concatenate([np.full(n + 1, s[0]), s])
+    out = pad[1 : N + 1].copy()
+    if a:
+        out = (1.0 - a) * out + a * pad[:N]
+    return out
+
+
+def delay_taps(samples: float) -> FloatArray:
+    """FIR taps of a delay block: ``v[k] = Σ_i taps[i] s[k-i]``."""
+    n, a = split_delay(samples)
+    taps = np.zeros(n + (2 if a else 1))
+    taps[n] = 1.0 - a
+    if a:
+        taps[n + 1] = a
+    return taps
 
 
 def rate_limiter(s: FloatArray, rate: float) -> FloatArray:
@@ -544,212 +576,3 @@ def _sim_sparse(
             X[kk + 1 :] = np.nan
             break
     return X[L:, list(rep.output_states)]
-
-
-# -- k-step-ahead prediction ----------------------------------------------------------------------
-
-
-def predict(model: Model, u: FloatArray, y: FloatArray, k: int = 1) -> FloatArray:
-    """k-step-ahead prediction ``ŷ(t | t-k)`` from measured inputs and outputs.
-
-    State-space models run a steady-state Kalman predictor (the model's ``K`` when it has one,
-    otherwise the gain for unit process and measurement noise) and propagate it ``k-1`` steps.
-    ARX and sparse maps are iterated ``k`` times from the measured history.  The first ``k``
-    samples (and the model's history length) repeat the measurement.
-
-    Parameters
-    ----------
-    model : Model
-        Any representation without output blocks.
-    u, y : array
-        Measured inputs (n, nu) and outputs (n, ny).
-    k : int
-        Prediction horizon in samples, >= 1.
-    """
-    u, y_checked = _check_u(model, u, y)
-    assert y_checked is not None
-    y = y_checked
-    if k < 1:
-        raise DataError(f"The prediction horizon k must be >= 1, found {k}.")
-    ub = _apply_blocks(model.input_blocks, model.input_names, u)
-    rep = model.representation
-    if isinstance(rep, StateSpace) and rep.terms:
-        return _predict_ss_terms(model, rep, ub, y, k)
-    if isinstance(rep, StateSpace):
-        return _predict_ss(rep, ub, y, k)
-    return _predict_recursive(model, ub, y, k)
-
-
-def _predict_ss_terms(
-    model: Model, rep: StateSpace, u: FloatArray, y: FloatArray, k: int
-) -> FloatArray:
-    """k-step prediction with terms: Θ from measurements up to t-k, from predictions after."""
-    assert rep.E is not None
-    ny = rep.C.shape[0]
-    theta = ss_theta_measured(model, u, y)
-    lin = StateSpace(
-        rep.A, np.hstack([rep.B, rep.E]), rep.C, np.hstack([rep.D, np.zeros((ny, rep.E.shape[1]))])
-    )
-    ua = np.hstack([u, theta])
-    K = rep.K if rep.K is not None else fitted_kalman_gain(lin, ua, y)
-    Xp = _one_step_states(lin, K, ua, y)
-    if k == 1:
-        return Xp[:-1] @ rep.C.T + u @ rep.D.T
-    ct = CompiledTerms(rep.terms)
-    L = max((t.max_lag for t in rep.terms), default=1)
-    out = y.copy()
-    names_in, names_out = model.input_names, model.output_names
-    for t in range(k - 1 + L, u.shape[0]):
-        x = Xp[t - k + 1]
-        ywin = {n: list(y[t - k + 1 - L : t - k + 1, j]) for j, n in enumerate(names_out)}
-        for j in range(t - k + 1, t):
-            yj = rep.C @ x + rep.D @ u[j]
-            for c, n in enumerate(names_out):
-                ywin[n].append(yj[c])
-            vals = np.array(
-                [
-                    ywin[n][-1 - lag] if n in ywin else u[j - lag, names_in.index(n)]
-                    for n, lag in ct.keys
-                ]
-            )
-            x = rep.A @ x + rep.B @ u[j] + rep.E @ ct.evaluate(vals)
-        out[t] = rep.C @ x + rep.D @ u[t]
-    return out
-
-
-def _predict_ss(rep: StateSpace, u: FloatArray, y: FloatArray, k: int) -> FloatArray:
-    A, B, C, D = rep.A, rep.B, rep.C, rep.D
-    K = rep.K if rep.K is not None else fitted_kalman_gain(rep, u, y)
-    N = u.shape[0]
-    Xp = _one_step_states(rep, K, u, y)
-    # x̂(t | t-k): start at x̂(t-k+1 | t-k) and propagate k-1 steps with known inputs.
-    out = y.copy()
-    for t in range(k - 1, N):
-        x = Xp[t - k + 1]
-        for j in range(t - k + 1, t):
-            x = A @ x + B @ u[j]
-        out[t] = C @ x + D @ u[t]
-    return out
-
-
-def _one_step_states(rep: StateSpace, K: FloatArray, u: FloatArray, y: FloatArray) -> FloatArray:
-    """``Xp[t] = x̂(t | t-1)`` of the predictor with gain ``K``, for t = 0..N."""
-    A, B, C, D = rep.A, rep.B, rep.C, rep.D
-    N = u.shape[0]
-    Xp = np.empty((N + 1, rep.n_states))
-    Xp[0] = estimate_x0(rep, u, y)
-    AK, BK = A - K @ C, B - K @ D
-    for t in range(N):
-        Xp[t + 1] = AK @ Xp[t] + BK @ u[t] + K @ y[t]
-    return Xp
-
-
-def fitted_kalman_gain(
-    rep: StateSpace, u: FloatArray, y: FloatArray, max_samples: int = 5000
-) -> FloatArray:
-    """Predictor gain for a model without a noise model, chosen from the data.
-
-    The gain solves the Kalman DARE with ``Q = q I`` and ``R = I``; ``q`` is picked from a
-    log grid (1e-8 .. 1e2) by the one-step prediction error on the first ``max_samples``
-    samples.  Pure output noise selects ``q -> 0`` (the predictor then trusts the model),
-    unmodelled disturbances select larger ``q``.
-    """
-    n, ny = rep.n_states, rep.C.shape[0]
-    uu, yy = u[:max_samples], y[:max_samples]
-    best, best_err = np.zeros((n, ny)), np.inf
-    for q in (1e-8, 1e-6, 1e-4, 1e-2, 1.0, 1e2):
-        try:
-            K = kalman_gain(rep.A, rep.C, q * np.eye(n), np.eye(ny))
-        except SimulationError:
-            continue
-        Xp = _one_step_states(rep, K, uu, yy)[:-1]
-        err = float(np.mean((yy - Xp @ rep.C.T - uu @ rep.D.T) ** 2))
-        if err < best_err:
-            best, best_err = K, err
-    return best
-
-
-def kalman_gain(
-    A: FloatArray, C: FloatArray, Q: FloatArray | None = None, R: FloatArray | None = None
-) -> FloatArray:
-    """Steady-state predictor gain for ``x+ = Ax + w``, ``y = Cx + v`` (unit covariances by default)."""
-    from scipy.linalg import solve_discrete_are
-
-    n, ny = A.shape[0], C.shape[0]
-    Q = np.eye(n) if Q is None else Q
-    R = np.eye(ny) if R is None else R
-    try:
-        P = solve_discrete_are(A.T, C.T, Q, R)
-    except (np.linalg.LinAlgError, ValueError) as exc:
-        raise SimulationError(f"No steady-state Kalman gain for this model: {exc}") from None
-    return np.asarray(A @ P @ C.T @ np.linalg.inv(C @ P @ C.T + R))
-
-
-def _predict_recursive(model: Model, u: FloatArray, y: FloatArray, k: int) -> FloatArray:
-    """Iterate one-step predictions: pass j uses predictions of pass j-i at lag i < j."""
-    rep = model.representation
-    passes = [y]  # passes[0] = measurement
-    for j in range(1, k + 1):
-        passes.append(_one_pass(model, rep, u, passes, j))
-    return passes[k].copy()
-
-
-def _one_pass(
-    model: Model, rep: Any, u: FloatArray, passes: list[FloatArray], j: int
-) -> FloatArray:
-    """Prediction ``ŷ(t | t-j)`` for every t, vectorised over t."""
-    N = u.shape[0]
-
-    def past_y(lag: int) -> FloatArray:
-        src = passes[j - lag] if lag < j else passes[0]
-        out = np.empty_like(src)
-        out[lag:] = src[: N - lag]
-        out[:lag] = passes[0][0]
-        return out
-
-    def past_u(lag: int) -> FloatArray:
-        out = np.empty_like(u)
-        out[lag:] = u[: N - lag]
-        out[:lag] = u[0]
-        return out
-
-    if isinstance(rep, ARX):
-        _, G, off = _arx_parts(model, rep)
-        pred = np.zeros_like(passes[0]) + off
-        for i, Ai in enumerate(rep.A, start=1):
-            pred -= past_y(i) @ Ai.T
-        for lag, Gl in enumerate(G):
-            if np.any(Gl):
-                pred += past_u(lag) @ Gl.T
-        if rep.terms and rep.term_coefficients is not None:
-            ct = CompiledTerms(rep.terms)
-            vals = []
-            for name, lag in ct.keys:
-                if name in model.output_names:
-                    vals.append(past_y(lag)[:, model.output_names.index(name)])
-                else:
-                    vals.append(past_u(lag)[:, model.input_names.index(name)])
-            pred += ct.evaluate(np.array(vals)).T @ rep.term_coefficients
-        L = arx_max_lag(rep, len(model.inputs))
-        pred[:L] = passes[0][:L]
-        return pred
-    assert isinstance(rep, SparseMap)
-    ct = CompiledTerms(rep.terms)
-    states = [s.name for s in model.states]
-    full_states = len(rep.output_states) == rep.n_states
-    if not full_states:
-        raise SimulationError(
-            "k-step prediction of a sparse_map needs every state measured (states = outputs)."
-        )
-    vals = []
-    for name, lag in ct.keys:
-        if name in states:
-            col = list(rep.output_states).index(states.index(name))
-            vals.append(past_y(lag + 1)[:, col])
-        else:
-            vals.append(past_u(lag + 1)[:, model.input_names.index(name)])
-    X = ct.evaluate(np.array(vals)).T @ rep.coefficients
-    pred = X[:, list(rep.output_states)]
-    L = max((t.max_lag for t in rep.terms), default=0) + 1
-    pred[:L] = passes[0][:L]
-    return pred

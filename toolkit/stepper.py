@@ -39,6 +39,7 @@ from numpy.typing import NDArray
 
 from tendonkit.errors import DataError
 from tendonkit.schema import ARX, Block, Model, SparseMap, StateSpace
+from tendonkit.simulate import split_delay
 from tendonkit.terms import CompiledTerms, scalar_evaluator
 
 __all__ = ["Stepper", "feedthrough"]
@@ -66,9 +67,11 @@ class _BlockState:
         if kind == "saturation":
             return min(max(s, p["lower"]), p["upper"])
         if kind == "delay":
-            if int(p["samples"]) == 0 or not self.started:
+            n, a = split_delay(p["samples"])
+            if (n == 0 and a == 0) or not self.started:
                 return s
-            return self.fifo[0]
+            # fifo = [s[k-n-1], ..., s[k-1]]
+            return (1.0 - a) * (self.fifo[1] if n else s) + a * self.fifo[0]
         if kind == "play":
             v = self.v if self.started else s
             w = p["width"]
@@ -89,10 +92,10 @@ class _BlockState:
         out = self.value(s)
         kind, p = self.kind, self.p
         if kind == "delay":
-            d = int(p["samples"])
-            if d:
+            n, a = split_delay(p["samples"])
+            if n or a:
                 if not self.started:
-                    self.fifo.extend([s] * d)
+                    self.fifo.extend([s] * (n + 1))
                 self.fifo.append(s)
                 self.fifo.popleft()
         elif kind in ("play", "rate_limit"):

@@ -27,8 +27,9 @@ import numpy as np
 from tendonkit.dataset import Dataset
 from tendonkit.errors import DataError, TendonkitError
 from tendonkit.metrics import fit
+from tendonkit.predict import predict
 from tendonkit.schema import Model
-from tendonkit.simulate import predict, simulate
+from tendonkit.simulate import simulate
 
 #: Minimum validation fit (percent) on the easy conformance system; the truth scores ~99.
 MIN_FIT = 50.0

@@ -10,8 +10,9 @@ import pytest
 from scipy.signal import lfilter
 
 from tendonkit.dataset import Dataset, Experiment
-from tendonkit.diagnose import autocorrelation_time, diagnose, holm, loss_test
+from tendonkit.diagnose import diagnose
 from tendonkit.errors import OptionError
+from tendonkit.stats import autocorrelation_time, holm, loss_test
 
 
 def _ar1(rng, a, n, burn=2000):

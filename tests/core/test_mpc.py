@@ -428,7 +428,7 @@ def test_reference_is_padded_and_checked(robot):
 def test_noise_model_with_innovation_gain_is_used(robot):
     ss = robot.representation
     assert isinstance(ss, StateSpace)
-    from tendonkit.simulate import kalman_gain
+    from tendonkit.predict import kalman_gain
 
     K = kalman_gain(ss.A, ss.C, 1e-3 * np.eye(4), 1e-4 * np.eye(2))
     with_k = robot.replace(representation=replace(ss, K=K))

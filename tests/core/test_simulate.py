@@ -8,8 +8,9 @@ import pytest
 
 from tendonkit.errors import DataError
 from tendonkit.metrics import fit
+from tendonkit.predict import predict
 from tendonkit.schema import ARX, Block, Model, Signal, SparseMap, StateSpace
-from tendonkit.simulate import apply_block, estimate_x0, play_operator, predict, simulate
+from tendonkit.simulate import apply_block, estimate_x0, play_operator, simulate
 from tendonkit.terms import Factor, Term
 
 

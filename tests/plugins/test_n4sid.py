@@ -15,8 +15,9 @@ import tendonkit as tk
 from tendonkit.errors import DataError, OptionError
 from tendonkit.plugins import _subspace
 from tendonkit.plugins.n4sid import N4SID
+from tendonkit.predict import kalman_gain
 from tendonkit.schema import Model, StateSpace
-from tendonkit.simulate import kalman_gain, ss_response
+from tendonkit.simulate import ss_response
 from tendonkit.testsystems import random_state_space, simulate_truth
 
 

@@ -231,11 +231,11 @@ def test_feedthrough_is_structural_and_knows_startup_padding():
 @pytest.mark.parametrize("delays", [(0.4,), (1.0,), (2.3,), (1.5, 0.5)], ids=str)
 def test_fractional_delays_agree_in_simulate_stepper_and_state_space(delays):
     """A delay of n + α samples is (1-α) u[k-n] + α u[k-n-1], wherever the model runs."""
+    import dataclasses
+
     import control
 
     from tendonkit.realize import to_state_space
-
-    import dataclasses
 
     rng = np.random.default_rng(7)
     base = model("arx_linear", False)

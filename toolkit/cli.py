@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 import tempfile
@@ -145,9 +146,16 @@ def cmd_identify(args: argparse.Namespace) -> int:
         data = Dataset.from_csv(args.data, inputs, outputs, time=args.time)
     except DataError as exc:
         problems.extend(exc.problems or [str(exc)])
+    cutoff = _lowpass_cutoff(args.lowpass, data, problems) if args.lowpass else None
     raise_problems(problems, "tendonkit identify cannot run:")
     assert data is not None and factory is not None
+    if cutoff is not None:
+        from tendonkit.preprocess import lowpass
+
+        data = lowpass(data, cutoff)
     model = factory.identify(data)
+    if cutoff is not None:
+        model = _noted(model, f"outputs low-pass filtered at {cutoff:.6g} Hz (zero-phase)")
     atomic_write(args.output, model.save)
     summary = {
         "model": str(args.output),
@@ -155,12 +163,46 @@ def cmd_identify(args: argparse.Namespace) -> int:
         "kind": model.kind,
         "training_fit": model.provenance.training_fit,
         "samples": data.n_samples,
+        "lowpass_hz": cutoff,
     }
     if args.json:
         write_json(args.json, summary)
     fits = ", ".join(f"{k} {v:.2f} %" for k, v in model.provenance.training_fit.items())
     print(f"{args.method}: {model.kind} model written to {args.output} (training fit: {fits})")
     return 0
+
+
+def _lowpass_cutoff(value: str, data: Any, problems: list[str]) -> float | None:
+    """``--lowpass``: a cut-off in Hz, or ``paper`` / ``paper-matlab`` (the paper's filter)."""
+    from tendonkit.preprocess import paper_cutoff_hz
+
+    if data is None:
+        return None
+    nyquist = 0.5 / data.dt
+    if value in ("paper", "paper-matlab"):
+        return float(paper_cutoff_hz(data.dt, "literal" if value == "paper" else "matlab"))
+    try:
+        hz = float(value)
+    except ValueError:
+        problems.append(
+            f"--lowpass must be a cut-off in Hz, 'paper' or 'paper-matlab', found {value!r}."
+        )
+        return None
+    if not (math.isfinite(hz) and 0 < hz < nyquist):
+        problems.append(
+            f"--lowpass must be between 0 and the Nyquist frequency {nyquist:.6g} Hz, found {value}."
+        )
+        return None
+    return hz
+
+
+def _noted(model: Any, text: str) -> Any:
+    """``model`` with ``text`` appended to its provenance notes."""
+    import dataclasses
+
+    prov = model.provenance
+    notes = f"{prov.notes}; {text}" if prov.notes else text
+    return model.replace(provenance=dataclasses.replace(prov, notes=notes))
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
@@ -425,6 +467,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, help="model JSON file to write")
     p.add_argument("--time", default="t", help="time column in seconds (default: t)")
     p.add_argument("--json", help="also write a JSON summary here")
+    p.add_argument(
+        "--lowpass",
+        metavar="HZ|paper|paper-matlab",
+        help="zero-phase low-pass of the outputs before identifying: a cut-off in Hz, or the "
+        "paper's 0.001 rad/sample read literally ('paper') or as MATLAB does ('paper-matlab')",
+    )
     p.set_defaults(func=cmd_identify)
 
     p = sub.add_parser("simulate", help="simulate a model on the inputs of a CSV file")

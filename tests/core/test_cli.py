@@ -153,3 +153,38 @@ def test_plugins_lists_builtins(capsys):
 def test_help_exits_zero(argv):
     r = run(*argv)
     assert r.returncode == 0 and "usage: tendonkit" in r.stdout
+
+
+def test_identify_lowpass_filters_the_outputs_first(tmp_path, csv_file):
+    """``--lowpass`` = identifying on :func:`tendonkit.preprocess.lowpass` data (paper §II)."""
+    from tendonkit.manager import identifiers
+    from tendonkit.preprocess import lowpass
+    from tendonkit.schema import Model
+
+    data = csv_file()
+    model, summary = tmp_path / "m.json", tmp_path / "s.json"
+    args = ["identify", str(data), "--inputs", "u1,u2", "--outputs", "y1,y2", "-o", str(model)]
+    assert main([*args, "--lowpass", "2", "--json", str(summary)]) == 0
+    got = Model.load(model)
+    want = (
+        identifiers()
+        .get("arx")
+        .create()
+        .identify(lowpass(Dataset.from_csv(data, ["u1", "u2"], ["y1", "y2"]), 2.0))
+    )
+    for a, b in zip(got.representation.A, want.representation.A, strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-12)
+    assert "low-pass filtered at 2 Hz" in got.provenance.notes
+    assert json.loads(summary.read_text())["lowpass_hz"] == 2.0
+    # the paper's cut-off, read literally: 0.001 rad/sample at dt = 0.05 s
+    assert main([*args, "--lowpass", "paper", "--json", str(summary)]) == 0
+    assert json.loads(summary.read_text())["lowpass_hz"] == pytest.approx(
+        0.001 / (2 * np.pi * 0.05)
+    )
+    # bad values are listed with the other problems
+    r = run(*args[:-2], "-o", str(tmp_path / "no" / "m.json"), "--lowpass", "50")
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert "Nyquist frequency 10 Hz, found 50" in r.stderr
+    assert "the folder of output" in r.stderr  # every problem at once
+    r = run(*args, "--lowpass", "fast")
+    assert r.returncode == 2 and "'paper' or 'paper-matlab', found 'fast'" in r.stderr

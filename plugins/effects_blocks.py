@@ -73,13 +73,7 @@ class InputDelay:
         fractions = [best_d + f for f in self.fractions if best_d + f > 0]
         frac = ctx.select([candidate(d) for d in fractions])
         params, model, score = whole[:3] if frac[2] <= whole[2] else frac[:3]
-        assert model is not None
-        return Extension(
-            model=model,
-            params=params,
-            description=self.description,
-            train_gain=score - ctx.baseline_score,
-        )
+        return ctx.extension(params, model, score, self.description)
 
     def signature(
         self, ctx: Context, baseline: Model, valid: Dataset, res: ResidualAnalysis
@@ -365,14 +359,7 @@ class ActuatorLag:
             if best_lag:
                 cands.append(({**rp, **p1}, _with_input_blocks(ctx, [*rblocks, *best_lag])))
         params, model, score, _ = ctx.select(cands)
-        if model is None:
-            return None
-        return Extension(
-            model=model,
-            params=params,
-            description=self.description,
-            train_gain=score - ctx.baseline_score,
-        )
+        return ctx.extension(params, model, score, self.description)
 
     def signature(
         self, ctx: Context, baseline: Model, valid: Dataset, res: ResidualAnalysis

@@ -150,6 +150,12 @@ class Context:
     ) -> Extension | None:
         """The :class:`Extension` of the best candidate (:meth:`select`), or None."""
         params, model, score, _ = self.select(candidates)
+        return self.extension(params, model, score, description)
+
+    def extension(
+        self, params: dict[str, Any], model: Model | None, score: float, description: str
+    ) -> Extension | None:
+        """The :class:`Extension` for a model chosen with :meth:`select` (None if there is none)."""
         if model is None:
             return None
         return Extension(

@@ -152,7 +152,6 @@ class QuadraticDamping:
 
     def extend(self, ctx):
         from tendonkit.augment import extend_with_terms
-        from tendonkit.diagnose import Extension
         from tendonkit.terms import Factor, Term
 
         cands = []
@@ -166,15 +165,8 @@ class QuadraticDamping:
                 return extend_with_terms(ctx.baseline, d, terms, refit=ctx.refit)
 
             cands.append(({"velocity_span": span}, build))
-        params, model, fit_score, _ = ctx.select(cands)
-        if model is None:
-            return None
-        return Extension(
-            model=model,
-            params=params,
-            description=self.description,
-            train_gain=fit_score - ctx.baseline_score,
-        )
+        # the candidate with the best training simulation fit (None if every one failed)
+        return ctx.best_extension(cands, self.description)
 
     def signature(self, ctx, baseline, valid, residuals):
         return {

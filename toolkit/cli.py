@@ -343,6 +343,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         min_relative_gain=args.min_relative_gain,
         seed=args.seed,
         progress=sys.stderr.isatty(),
+        fallback=not args.no_fallback,
     )
     model_path = args.model or (
         str(Path(args.report) / "extended_model.json") if args.report else None
@@ -370,6 +371,18 @@ def render_diagnosis(summary: dict[str, Any]) -> str:
         f"cause: {summary['cause']}",
         f"baseline ({summary['baseline']['method']}): fit {summary['baseline']['fit']:.2f} %",
     ]
+    check = summary["baseline"].get("check")
+    if check and check["biased"]:
+        what = (
+            "diagnosed against n4sid instead"
+            if check["fallback"]
+            else "kept (--no-fallback); its gains may measure that bias"
+        )
+        lines.append(
+            f"note: the {check['requested_method']} baseline's training free-run error is "
+            f"{check['error_ratio']:.1f}x that of a linear n4sid model (output noise biases an "
+            f"equation-error fit); {what}."
+        )
     ext = summary["extended"]
     if summary["cause"] != "none":
         lines.append(
@@ -518,6 +531,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="smallest relative drop of the validation error energy that counts (default 0.02)",
     )
     p.add_argument("--seed", type=int, default=0, help="seed for every random choice")
+    p.add_argument(
+        "--no-fallback",
+        action="store_true",
+        help="keep the requested baseline even when a linear n4sid model simulates the training "
+        "data far better (by default diagnose then uses n4sid; see docs/diagnose.md)",
+    )
     p.add_argument("--json", help="write the result as JSON here")
     p.add_argument(
         "--model", help="write the extended model here (default: next to --json/--report)"

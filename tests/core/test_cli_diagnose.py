@@ -86,3 +86,33 @@ def test_diagnose_bad_input_is_one_message(tmp_path):
         "input column 'nope' is not in the file",
     ):
         assert text in r.stderr
+
+
+def _noisy_oscillator(n, seed):
+    """A lightly damped linear oscillator, finely sampled, with 5 % noise on the output."""
+    from scipy.signal import butter, lfilter
+
+    rng = np.random.default_rng(seed)
+    u = lfilter(*butter(2, 2.0, fs=100.0), rng.standard_normal(n))
+    x, v, y = 0.0, 0.0, np.empty(n)
+    for k in range(n):  # semi-implicit Euler of x'' = u - 0.6 x' - 40 x, at 100 Hz
+        y[k] = x
+        v += 0.01 * (u[k] - 0.6 * v - 40.0 * x)
+        x += 0.01 * v
+    return {"t": 0.01 * np.arange(n), "force": u, "pos": y + 0.05 * y.std() * rng.normal(size=n)}
+
+
+def test_a_biased_baseline_is_replaced_and_the_note_printed(tmp_path):
+    tr = write_csv(tmp_path / "train.csv", _noisy_oscillator(5000, 3))
+    va = write_csv(tmp_path / "valid.csv", _noisy_oscillator(5000, 4))
+    out = tmp_path / "d.json"
+    args = ("diagnose", str(tr), str(va), "--inputs", "force", "--outputs", "pos")
+    r = run(*args, "--effects", "gravity,input_delay", "--json", str(out))
+    assert r.returncode == 0, r.stderr
+    d = json.loads(out.read_text())
+    assert d["baseline"]["method"] == "n4sid" and d["baseline"]["check"]["fallback"]
+    assert "diagnosed against n4sid instead" in r.stdout and d["cause"] == "none"
+    r = run(*args, "--effects", "gravity", "--no-fallback", "--json", str(out))
+    d = json.loads(out.read_text())
+    assert r.returncode == 0 and d["baseline"]["method"] == "arx"
+    assert d["baseline"]["check"]["biased"] and "kept (--no-fallback)" in r.stdout

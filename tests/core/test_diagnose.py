@@ -105,6 +105,41 @@ def test_noise_alone_names_no_cause(seed):
     assert d.best is None and d.margin is None
 
 
+def _oscillator(seed, n, noise):
+    """A lightly damped 1 Hz oscillator sampled at 100 Hz; white noise on the *output*."""
+    from scipy.signal import butter, cont2discrete
+
+    rng = np.random.default_rng(seed)
+    sys_c = (np.array([[0.0, 1.0], [-40.0, -0.6]]), np.array([[0.0], [1.0]]), np.eye(1, 2), 0.0)
+    A, B, C, _, _ = cont2discrete(sys_c, 0.01)
+    u = lfilter(*butter(2, 2.0, fs=100.0), rng.standard_normal(n))
+    x, y = np.zeros(2), np.empty(n)
+    for k in range(n):
+        y[k] = (C @ x)[0]
+        x = A @ x + B[:, 0] * u[k]
+    y = y + noise * y.std() * rng.standard_normal(n)
+    exp = Experiment(t=0.01 * np.arange(n), u=u[:, None], y=y[:, None], name=f"seed{seed}")
+    return Dataset(inputs=("force",), outputs=("pos",), experiments=(exp,), dt=0.01)
+
+
+@pytest.mark.parametrize("seed", [51, 52])
+def test_a_baseline_biased_by_output_noise_falls_back_to_n4sid(seed):
+    """ARX by equation error on a noisy, finely sampled oscillator simulates badly; the
+    extensions would "gain" by changing that bias.  diagnose checks the baseline against a
+    linear N4SID model and diagnoses against N4SID instead: no cause."""
+    train, valid = _oscillator(seed, 6000, 0.05), _oscillator(seed + 100, 6000, 0.05)
+    d = diagnose(train, valid, method="arx")
+    check = d.baseline_check
+    assert check is not None and check["biased"] and check["fallback"]
+    assert check["requested_method"] == "arx" and check["error_ratio"] > 10
+    assert d.baseline_method == "n4sid" and d.to_dict()["baseline"]["check"]["fallback"]
+    assert d.cause == "none", [(f.effect, f.gain, f.p_adjusted) for f in d.findings]
+    kept = diagnose(train, valid, method="arx", fallback=False, effects=["gravity"])
+    assert kept.baseline_method == "arx" and kept.baseline_check["biased"]
+    assert not kept.baseline_check["fallback"]
+    assert max(kept.baseline_fit.values()) < min(d.baseline_fit.values()) - 20
+
+
 def test_an_input_delay_is_found_with_a_lean_baseline():
     train = _arx_data(21, 3000, delay=3)
     valid = _arx_data(22, 2000, delay=3)

@@ -236,7 +236,26 @@ class Gravity(_TermEffect):
             # amplitude-dependent terms of a nonlinear stiffness (sin y = y - y^3/6 would).
             cos_terms = [Term((Factor(n, fn="cos", lag=1),)) for n in ctx.train.outputs]
             cands.append(({"terms": "constant+cos"}, const + cos_terms))
+            # The whole torque of a weight on a link mounted at an angle θ0,
+            # m g l sin(y + θ0) = a sin y + b cos y: its odd part overlaps a stiffness, so it
+            # is only a candidate together with the even part and the constant.
+            sin_terms = [Term((Factor(n, fn="sin", lag=1),)) for n in ctx.train.outputs]
+            cands.append(({"terms": "constant+sin+cos"}, const + sin_terms + cos_terms))
         return cands
+
+    def extend(self, ctx: Context) -> Extension | None:
+        """A constant load first; its angle dependence only if the load itself is supported.
+
+        ``sin`` and ``cos`` of an output together can imitate a general even-plus-odd stiffness
+        (Silverbox, an electronic Duffing oscillator with no load, gains +12 points with them).
+        What sets gravity apart is the load: the angle-dependent candidates are tried only when
+        the constant alone improves the training simulation fit.
+        """
+        cands = self.builders(ctx)
+        params, model, score, _ = ctx.select(cands[:1])
+        if model is None or score <= ctx.baseline_score or len(cands) == 1:
+            return ctx.extension(params, model, score, self.description)
+        return ctx.best_extension(cands, self.description)
 
     def signature(
         self, ctx: Context, baseline: Model, valid: Dataset, res: ResidualAnalysis

@@ -1,0 +1,119 @@
+"""diagnose on a system that is not the robot: a 1-DOF oscillator with one hidden effect.
+
+tendonkit is meant for other plants, signal names, magnitudes and sample times too.  The system
+is a mass-spring-damper (1 Hz, damping ratio 0.05), driven by a band-limited random force
+(`force`, 2nd-order Butterworth at 2 Hz, rms 10) and measured as a position (`pos`, 2 % white
+noise on the output), simulated with RK4 at 10 sub-steps per sample and a zero-order-held input.
+Each effect is hidden at a fixed, clearly visible magnitude; training and validation are two
+records each with different seeds.  The baseline is diagnose's default (`arx`, ARX(8, 8, 1)),
+as a user would run it, at two sample times: 0.05 s (20 samples per period) and 0.01 s (100
+per period, where equation-error ARX is biased by the output noise and diagnose falls back to
+N4SID when it is grossly so, see docs/diagnose.md).  The plain linear system must give `none`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.signal import butter, lfilter
+
+from tendonkit.dataset import Dataset, Experiment
+from tendonkit.diagnose import diagnose
+from tendonkit.simulate import play_operator
+
+pytestmark = pytest.mark.slow
+
+M, C, K = 1.0, 0.6, 40.0
+#: Hidden effect -> parameters (forces in the units of `force`, angles/positions in rad).
+EFFECTS = {
+    "none": {},
+    "coulomb_friction": {"Fc": 1.0},
+    "backlash": {"b": 0.02},
+    "input_delay": {"seconds": 0.05},
+    "dead_zone": {"th": 3.0},
+    "saturation": {"s": 12.0},
+    "actuator_lag": {"tau": 0.1},
+    "nonlinear_stiffness": {"k3": 100.0},
+    "gravity": {"g": 10.0, "th0": 0.3},
+}
+#: Draws that miss, with the reason (docs/diagnose.md, "A system that is not the robot").
+MISSES = {
+    ("input_delay", 0.05): "one sample of delay is inside ARX(8, 8, 1)'s numerator (lags 1-8): "
+    "not an error of that model",
+    ("nonlinear_stiffness", 0.01): "the cubic dominates (ARX free-run fit 7 %); the stiffness "
+    "terms gain +13.3 but p_adj 0.016 and backlash (+7.2, p_adj 0.004) is named",
+    ("gravity", 0.01): "a tie: gravity +6.77 against coulomb_friction +6.53, whose tanh² term is "
+    "a constant force while moving; parsimony picks the friction's fewer parameters",
+}
+
+
+def _force(n: int, dt: float, seed: int) -> np.ndarray:
+    u = lfilter(*butter(2, 2.0, fs=1.0 / dt), np.random.default_rng(seed).standard_normal(n))
+    return 10.0 * u / u.std()
+
+
+def _response(u: np.ndarray, dt: float, effect: str, p: dict, sub: int = 10) -> np.ndarray:
+    if effect == "input_delay":
+        d = round(p["seconds"] / dt)
+        u = np.concatenate([np.full(d, u[0]), u[:-d]])
+    elif effect == "dead_zone":
+        u = np.sign(u) * np.maximum(np.abs(u) - p["th"], 0.0)
+    elif effect == "saturation":
+        u = np.clip(u, -p["s"], p["s"])
+    elif effect == "actuator_lag":
+        a = np.exp(-dt / p["tau"])
+        u = lfilter([0.0, 1.0 - a], [1.0, -a], u)
+
+    def acc(x: float, v: float, f: float) -> float:
+        force = f - C * v - K * x
+        if effect == "coulomb_friction":
+            force -= p["Fc"] * np.tanh(v / 1e-3)
+        elif effect == "nonlinear_stiffness":
+            force -= p["k3"] * x**3
+        elif effect == "gravity":
+            force -= p["g"] * np.sin(x + p["th0"])
+        return force / M
+
+    h = dt / sub
+    x = v = 0.0
+    y = np.empty(len(u))
+    for i, f in enumerate(u):
+        y[i] = x
+        for _ in range(sub):
+            k1x, k1v = v, acc(x, v, f)
+            k2x, k2v = v + h / 2 * k1v, acc(x + h / 2 * k1x, v + h / 2 * k1v, f)
+            k3x, k3v = v + h / 2 * k2v, acc(x + h / 2 * k2x, v + h / 2 * k2v, f)
+            k4x, k4v = v + h * k3v, acc(x + h * k3x, v + h * k3v, f)
+            x += h / 6 * (k1x + 2 * k2x + 2 * k3x + k4x)
+            v += h / 6 * (k1v + 2 * k2v + 2 * k3v + k4v)
+    return play_operator(y, p["b"]) if effect == "backlash" else y
+
+
+def _data(effect: str, dt: float, seed: int, n: int = 4000) -> Dataset:
+    exps = []
+    for i in range(2):
+        u = _force(n, dt, 10 * seed + i)
+        y = _response(u, dt, effect, EFFECTS[effect])
+        y = y + 0.02 * y.std() * np.random.default_rng(10 * seed + i + 5).standard_normal(n)
+        exps.append(Experiment(t=dt * np.arange(n), u=u[:, None], y=y[:, None], name=f"r{i}"))
+    return Dataset(inputs=("force",), outputs=("pos",), experiments=tuple(exps), dt=dt)
+
+
+def _cases() -> list:
+    out = []
+    for dt in (0.05, 0.01):
+        for effect in EFFECTS:
+            reason = MISSES.get((effect, dt))
+            marks = [pytest.mark.xfail(strict=False, reason=reason)] if reason else []
+            out.append(pytest.param(effect, dt, marks=marks, id=f"{effect}-{dt}"))
+    return out
+
+
+@pytest.mark.parametrize(("effect", "dt"), _cases())
+def test_the_hidden_effect_is_named(effect, dt):
+    d = diagnose(_data(effect, dt, 1), _data(effect, dt, 2))
+    top = ", ".join(f"{f.effect} {f.gain:+.2f} (p_adj {f.p_adjusted:.1e})" for f in d.findings[:3])
+    print(f"{effect} dt {dt}: cause {d.cause} via {d.baseline_method}; {top}")
+    assert d.cause == effect, top
+    if effect != "none":
+        assert d.best is not None and d.best.gain > 0

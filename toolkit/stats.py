@@ -122,7 +122,10 @@ def loss_test(
     n = len(ref)
     if n < 2 * min_batches or not (np.all(np.isfinite(ref)) and np.all(np.isfinite(alt))):
         return LossTest(1.0, float("nan"), float("nan"), 0, 0, float("nan"))
-    tau = autocorrelation_time(ref - alt)
+    with np.errstate(over="ignore", invalid="ignore"):
+        tau = autocorrelation_time(ref - alt)
+    if not math.isfinite(tau):
+        return LossTest(1.0, float("nan"), float("nan"), 0, 0, float("nan"))
     length = math.ceil(k * tau)
     b = int(np.clip(n // max(length, 1), min_batches, max_batches))
     tiny = 1e-12 * max(float(np.mean(ref)), float(np.mean(alt)), 1e-300)

@@ -104,6 +104,7 @@ def main() -> None:
     args = parser.parse_args()
     effect = {"friction_on": True}
     rows = [
+        run("arx", {"na": 3, "nb": 3, "nk": 1, "bilinear": True}, effect, args.repeat),
         run("arx", {"na": 3, "nb": 3, "nk": 1}, effect, args.repeat),
         run("arx", {}, effect, args.repeat),
     ]

@@ -95,29 +95,50 @@ class DeadZone:
     description = "Dead zone: the part of every input within a threshold of zero has no effect."
 
     #: Shares of the samples that fall inside the dead zone, per input.
-    quantiles = (0.005, 0.01, 0.02, 0.05, 0.1, 0.2)
+    quantiles = (0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.3)
+    #: Then shares between the best one and its neighbours (geometric steps of 2^±½, 2^±¼).
+    refine = (-0.5, -0.25, 0.25, 0.5)
 
     def extend(self, ctx: Context) -> Extension | None:
-        """Per-input thresholds at low quantiles of ``|u|``: the kink is placed where data are.
+        """Thresholds at low quantiles of ``|u|``: the kink is placed where data are.
 
         The zone is centred on the physical zero of each input.  For a signal of one sign (a
         tension, a pump voltage) it is one-sided: ``max(u - threshold, 0)``, slack below the
         threshold.  A threshold is only useful where some samples fall inside it, so the
-        candidates put 0.5–20 % of each input's samples in the zone.
+        candidates put 0.5–30 % of the samples in the zone: per input (each input's own
+        quantile), and one threshold for all inputs (a quantile of all inputs pooled — the
+        physical case when the inputs are alike, such as four tendons that slacken at the same
+        tension, whose samples are not distributed alike).  Then shares between the best one
+        and its neighbours are tried: a threshold off by a few percent of the range leaves a
+        kink where the system has none.
         """
         u = np.abs(ctx.train.u)
-        cands = []
-        for q in self.quantiles:
-            th = np.quantile(u, q, axis=0)
+
+        def candidate(
+            q: float, pooled: bool
+        ) -> tuple[dict[str, Any], Callable[[Dataset], Model]] | None:
+            th = np.full(u.shape[1], np.quantile(u, q)) if pooled else np.quantile(u, q, axis=0)
             blocks = [
                 Block("dead_zone", n, {"threshold": float(th[m]), "center": 0.0})
                 for m, n in enumerate(ctx.train.inputs)
                 if th[m] > 0
             ]
-            if blocks:
-                params = {"quantile": q, "threshold": [float(t) for t in th]}
-                cands.append((params, _with_input_blocks(ctx, blocks)))
-        return _select_and_finish(ctx, self, cands)
+            if not blocks:
+                return None
+            params = {"quantile": q, "common": pooled, "threshold": [float(t) for t in th]}
+            return params, _with_input_blocks(ctx, blocks)
+
+        kinds = (False, True) if u.shape[1] > 1 else (False,)
+        coarse = ctx.select(
+            c for q in self.quantiles for k in kinds if (c := candidate(q, k)) is not None
+        )
+        if coarse[1] is None:
+            return None
+        q0, k0 = coarse[0]["quantile"], coarse[0]["common"]
+        fine = [candidate(q0 * 2.0**e, k0) for e in self.refine if q0 * 2.0**e < 0.5]
+        best = ctx.select([c for c in fine if c is not None])
+        params, model, score = coarse[:3] if best[2] <= coarse[2] else best[:3]
+        return ctx.extension(params, model, score, self.description)
 
     def signature(
         self, ctx: Context, baseline: Model, valid: Dataset, res: ResidualAnalysis
@@ -325,6 +346,8 @@ class ActuatorLag:
     taus = (0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0)
     #: Rate limits tried, as quantiles of each input's |change per sample|.
     rate_quantiles = (0.05, 0.2, 0.5, 0.8)
+    #: Then the best rate times 2 to these powers.
+    refine = (-0.5, -0.25, 0.25, 0.5)
 
     def extend(self, ctx: Context) -> Extension | None:
         """First-order lags, then rate limits alone and combined with the best lag.
@@ -359,6 +382,23 @@ class ActuatorLag:
             if best_lag:
                 cands.append(({**rp, **p1}, _with_input_blocks(ctx, [*rblocks, *best_lag])))
         params, model, score, _ = ctx.select(cands)
+        if model is not None and "rate_quantile" in params:
+            # a rate limit acts on every sample where it binds, so its level matters more than
+            # a lag's: refine it between the quantiles (steps of 2^±½, 2^±¼ of the rate)
+            lag = best_lag if params.get("tau_s") else []
+            fine = []
+            for e in self.refine:
+                rate = np.asarray(params["rate_per_s"]) * dt * 2.0**e
+                rblocks = [
+                    Block("rate_limit", n, {"rate": float(rate[m])})
+                    for m, n in enumerate(ctx.train.inputs)
+                    if rate[m] > 0
+                ]
+                rp = {**params, "rate_per_s": [float(r / dt) for r in rate], "rate_step": e}
+                fine.append((rp, _with_input_blocks(ctx, [*rblocks, *lag])))
+            best = ctx.select(fine)
+            if best[2] > score:
+                params, model, score = best[:3]
         return ctx.extension(params, model, score, self.description)
 
     def signature(

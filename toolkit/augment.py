@@ -63,6 +63,15 @@ def _term_columns(terms: Sequence[Term], signals: dict[str, FloatArray], n: int)
     return ct.evaluate(np.array([get(name, lag) for name, lag in ct.keys])).T
 
 
+def term_columns(terms: Sequence[Term], e: Experiment, data: Dataset) -> FloatArray:
+    """``(n, n_terms)`` values of ``terms`` on experiment ``e`` of ``data`` (signals by name)."""
+    signals = {
+        **{n: e.u[:, j] for j, n in enumerate(data.inputs)},
+        **{n: e.y[:, j] for j, n in enumerate(data.outputs)},
+    }
+    return _term_columns(terms, signals, e.n_samples)
+
+
 def _signals(model: Model, e: Experiment) -> dict[str, FloatArray]:
     return {
         **{n: e.u[:, j] for j, n in enumerate(model.input_names)},

@@ -341,6 +341,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         effects=chosen,
         alpha=args.alpha,
         min_relative_gain=args.min_relative_gain,
+        min_gain=args.min_gain,
         seed=args.seed,
         progress=sys.stderr.isatty(),
         fallback=not args.no_fallback,
@@ -529,6 +530,12 @@ def build_parser() -> argparse.ArgumentParser:
         type=float,
         default=0.02,
         help="smallest relative drop of the validation error energy that counts (default 0.02)",
+    )
+    p.add_argument(
+        "--min-gain",
+        type=float,
+        default=0.5,
+        help="smallest validation gain, in points of fit, that can name a cause (default 0.5)",
     )
     p.add_argument("--seed", type=int, default=0, help="seed for every random choice")
     p.add_argument(

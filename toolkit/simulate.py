@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 from tendonkit.dataset import Dataset
 from tendonkit.errors import DataError, SimulationError
 from tendonkit.schema import ARX, Block, Model, SparseMap, StateSpace
-from tendonkit.terms import CompiledTerms
+from tendonkit.terms import CompiledTerms, Factor, Term
 
 FloatArray = NDArray[np.float64]
 Initial = Literal["zero", "model", "estimate"] | FloatArray
@@ -475,29 +475,94 @@ def _sim_arx(
                 acc -= Acat @ Y[kk - na : kk][::-1].reshape(-1)
             Y[kk] = acc
         return Y[L:]
-    # Nonlinear terms: keys are (signal, lag); read the needed history per step.
+    # Nonlinear terms.  Terms of inputs only are known for every sample in advance; terms
+    # affine in one past output (an input-dependent gain, e.g. bilinear u·y) make the
+    # recursion linear with time-varying coefficients; only the rest are evaluated per step.
     from tendonkit.terms import scalar_evaluator
 
-    evaluate = scalar_evaluator(ct)
-    cols = {
-        **{n: (U, j) for j, n in enumerate(model.input_names)},
-        **{n: (Y, j) for j, n in enumerate(model.output_names)},
-    }
-    reads = [(cols[name][0], cols[name][1], lag) for name, lag in ct.keys]
-    coef_t = coef.T.copy()
-    for k in range(start, N):
-        kk = k + L
-        acc = forced[k].copy()
-        if na:
-            acc -= Acat @ Y[kk - na : kk][::-1].reshape(-1)
-        try:
-            theta = evaluate([float(arr[kk - lag, j]) for arr, j, lag in reads])
-        except (OverflowError, ValueError):  # the simulation diverged
-            Y[kk:] = np.nan
-            break
-        acc += coef_t @ theta
-        Y[kk] = acc
+    M, forced, general, gcoef = _time_varying_part(model, rep, U, forced, L, N, coef)
+    width = M.shape[2] // ny
+    ct = CompiledTerms(general) if general else None
+    evaluate = scalar_evaluator(ct) if ct is not None else None
+    reads: list[tuple[FloatArray, int, int]] = []
+    if ct is not None:
+        cols = {
+            **{n: (U, j) for j, n in enumerate(model.input_names)},
+            **{n: (Y, j) for j, n in enumerate(model.output_names)},
+        }
+        reads = [(cols[name][0], cols[name][1], lag) for name, lag in ct.keys]
+    gcoef_t = gcoef.T.copy()
+    with np.errstate(over="ignore", invalid="ignore"):
+        for k in range(start, N):
+            kk = k + L
+            acc = forced[k] + M[k] @ Y[kk - width : kk][::-1].reshape(-1)
+            if evaluate is not None:
+                try:
+                    theta = evaluate([float(arr[kk - lag, j]) for arr, j, lag in reads])
+                except (OverflowError, ValueError):  # the simulation diverged
+                    Y[kk:] = np.nan
+                    break
+                acc += gcoef_t @ theta
+            Y[kk] = acc
+    bad = ~np.isfinite(Y[L:]).all(axis=1)
+    if bad.any():  # diverged: nothing after the first non-finite sample is meaningful
+        Y[L + int(np.argmax(bad)) :] = np.nan
     return Y[L:]
+
+
+def _time_varying_part(
+    model: Model,
+    rep: ARX,
+    U: FloatArray,
+    forced: FloatArray,
+    L: int,
+    N: int,
+    coef: FloatArray,
+) -> tuple[FloatArray, FloatArray, list[Term], FloatArray]:
+    """Split an ARX model's terms for simulation.
+
+    Returns ``M`` of shape ``(N, ny, width·ny)`` with ``y[k] = forced[k] + M[k] ·
+    [y[k-1]; …; y[k-width]] + general terms``, the input contribution including the terms of
+    inputs only, and the remaining (general) terms with their coefficients.
+    """
+    from tendonkit.terms import series_getter
+
+    ny = len(model.outputs)
+    inputs, outputs = set(model.input_names), list(model.output_names)
+    getter = series_getter({n: U[:, j] for j, n in enumerate(model.input_names)})
+    width = max(rep.na, 1)
+    affine: list[tuple[int, Factor, FloatArray]] = []
+    general: list[Term] = []
+    gcoef: list[FloatArray] = []
+    forced = forced.copy()
+    for i, term in enumerate(rep.terms):
+        ins = [f for f in term.factors if f.signal in inputs]
+        outs = [f for f in term.factors if f.signal not in inputs]
+        if len(outs) > 1 or (
+            outs and ((outs[0].fn, outs[0].power, outs[0].diff) != ("pow", 1, 0) or outs[0].lag < 1)
+        ):
+            general.append(term)
+            gcoef.append(coef[i])
+            continue
+        g = np.ones(N)
+        if ins:
+            known = CompiledTerms((Term(tuple(ins)),))
+            g = known.evaluate(np.array([getter(n, lag) for n, lag in known.keys]))[0][L : L + N]
+        if not outs:
+            forced += np.outer(g, coef[i])
+            continue
+        f = outs[0]
+        width = max(width, f.lag)
+        affine.append((i, f, g))
+        # (y - offset)·scale: the constant part is known in advance
+        forced -= np.outer(g * f.offset * f.scale, coef[i])
+    M = np.zeros((N, ny, width * ny))
+    for lag, Ai in enumerate(rep.A, start=1):
+        M[:, :, (lag - 1) * ny : lag * ny] -= Ai
+    for i, f, g in affine:
+        col = (f.lag - 1) * ny + outputs.index(f.signal)
+        M[:, :, col] += np.outer(g * f.scale, coef[i])
+    return M, forced, general, np.array(gcoef).reshape(len(gcoef), ny)
 
 
 def _arx_block(

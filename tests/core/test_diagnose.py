@@ -167,13 +167,34 @@ def test_a_cubic_stiffness_is_found_and_the_result_follows_the_schema():
     assert out["margin_to_runner_up"] == pytest.approx(d.margin)
 
 
+def test_a_significant_but_small_gain_names_no_cause_below_min_gain():
+    """A weak cubic (gain +0.39 points, p_adj 8e-4) is significant; min_gain decides."""
+    train = _arx_data(31, 3000, cubic=0.001, noise=0.005)
+    valid = _arx_data(32, 2000, cubic=0.001, noise=0.005)
+    opts = {"na": 2, "nb": 1}
+    small = diagnose(train, valid, method="arx", options=opts, min_gain=0.0)
+    assert small.cause == "nonlinear_stiffness"
+    assert 0 < small.best.gain < 0.5 and small.best.p_adjusted < 0.01
+    default = diagnose(train, valid, method="arx", options=opts)
+    assert default.cause == "none" and default.settings["min_gain"] == 0.5
+    top = default.findings[0]
+    assert top.effect == "nonlinear_stiffness" and not top.significant
+    assert top.gain == pytest.approx(small.best.gain)
+
+
 def test_diagnose_reports_every_problem_at_once():
     data = _arx_data(1, 300)
     other = data.select(["f1"], ["pos"])
     with pytest.raises(OptionError) as err:
-        diagnose(data, other, alpha=0.7, min_relative_gain=1.5, effects=["nope"])
+        diagnose(data, other, alpha=0.7, min_relative_gain=1.5, min_gain=-1, effects=["nope"])
     text = str(err.value)
-    for needle in ("alpha", "min_relative_gain", "differ in signals", "unknown effects"):
+    for needle in (
+        "alpha",
+        "min_relative_gain",
+        "min_gain",
+        "differ in signals",
+        "unknown effects",
+    ):
         assert needle in text
 
 

@@ -52,7 +52,8 @@ def arx(rng, terms: bool = True) -> ARX:
     t = (
         (
             Term((Factor("q1", fn="sin", lag=1),)),
-            Term((Factor("T1", power=2), Factor("q2", lag=2))),
+            Term((Factor("T1", power=2), Factor("q2", lag=2, scale=1.5, offset=0.2))),
+            Term((Factor("T2", lag=1), Factor("q1", lag=1))),  # bilinear (time-varying path)
             Term((Factor("T2", fn="dead_zone", param=0.3, lag=0),)),
         )
         if terms
@@ -64,7 +65,7 @@ def arx(rng, terms: bool = True) -> ARX:
         nk=(0, 2),
         offset=np.array([0.1, -0.2]),
         terms=t,
-        term_coefficients=0.05 * rng.normal(size=(3, 2)) if terms else None,
+        term_coefficients=0.05 * rng.normal(size=(4, 2)) if terms else None,
     )
 
 

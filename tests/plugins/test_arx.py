@@ -107,3 +107,41 @@ def test_option_and_data_errors_list_every_problem():
         tk.identify(tiny, "arx")
     with pytest.raises(OptionError, match="one per input"):
         tk.identify(tiny, "arx", na=1, nb=(1, 1, 1))
+
+
+def test_bilinear_recovers_an_input_dependent_gain():
+    """y[k] = 0.8 y[k-1] + 0.4 u1[k-1] + 0.1 u2[k-1] y[k-1]: a stiffness set by an input."""
+    rng = np.random.default_rng(4)
+    n = 3000
+    u = np.column_stack([rng.normal(size=n), rng.uniform(-1.0, 1.0, size=n)])
+    y = np.zeros((n, 1))
+    for k in range(1, n):
+        y[k] = 0.8 * y[k - 1] + 0.4 * u[k - 1, 0] + 0.1 * u[k - 1, 1] * y[k - 1]
+    ds = tk.Dataset.from_arrays(u, y, 0.1, ("f", "s"), ("x",))
+    lin = tk.identify(ds, "arx", na=1, nb=1)
+    bil = tk.identify(ds, "arx", na=1, nb=1, bilinear=True)
+    rep = bil.representation
+    assert [t.label for t in rep.terms] == ["f[k-1]*x[k-1]", "s[k-1]*x[k-1]"]
+    np.testing.assert_allclose(rep.term_coefficients[:, 0], [0.0, 0.1], atol=1e-10)
+    np.testing.assert_allclose(rep.A[0], [[-0.8]], atol=1e-10)
+    np.testing.assert_allclose(rep.B[0], [[0.4, 0.0]], atol=1e-10)
+    # the model simulates exactly, which the linear one cannot
+    assert fit(y, tk.simulate(bil, u, initial="zero"))[0] > 99.99
+    assert fit(y, tk.simulate(lin, u, initial="zero"))[0] < 99.0
+    # saved and loaded, it is the same model (terms are data, not code)
+    again = Model.from_json(bil.to_json())
+    np.testing.assert_allclose(tk.simulate(again, u), tk.simulate(bil, u))
+
+
+def test_bilinear_needs_an_output_lag():
+    with pytest.raises(OptionError, match="bilinear needs na >= 1"):
+        tk.identify(
+            tk.Dataset.from_arrays(np.arange(50.0), np.arange(50.0), 1.0),
+            "arx",
+            na=0,
+            bilinear=True,
+        )
+    with pytest.raises(OptionError, match="bilinear"):
+        tk.identify(
+            tk.Dataset.from_arrays(np.arange(50.0), np.arange(50.0), 1.0), "arx", bilinear="maybe"
+        )

@@ -11,13 +11,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from tendonkit._simulate_arx import _arx_parts, arx_max_lag
 from tendonkit.errors import DataError, SimulationError
 from tendonkit.schema import ARX, Model, SparseMap, StateSpace
 from tendonkit.simulate import (
     _apply_blocks,
-    _arx_parts,
     _check_u,
-    arx_max_lag,
     estimate_x0,
     ss_theta_measured,
 )

@@ -70,7 +70,9 @@ class InputDelay:
         if whole[1] is None:
             return None
         best_d = whole[0]["samples"]
-        fractions = [best_d + f for f in self.fractions if best_d + f > 0]
+        # at least one sample: a shorter delay of a zero-order-held input is a blend of two
+        # samples, which is a detail of the sampling instant, not a transport delay
+        fractions = [best_d + f for f in self.fractions if best_d + f >= 1]
         frac = ctx.select([candidate(d) for d in fractions])
         params, model, score = whole[:3] if frac[2] <= whole[2] else frac[:3]
         return ctx.extension(params, model, score, self.description)
@@ -342,8 +344,9 @@ class ActuatorLag:
         "rate-limited, before it acts on the system."
     )
 
-    #: Time constants tried, in samples.
-    taus = (0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0)
+    #: Time constants tried, in samples (from one: a shorter lag of a zero-order-held input is a
+    #: detail of the sampling instant, which the baseline's numerator represents).
+    taus = (1.0, 2.0, 4.0, 8.0, 16.0, 32.0)
     #: Rate limits tried, as quantiles of each input's |change per sample|.
     rate_quantiles = (0.05, 0.2, 0.5, 0.8)
     #: Then the best rate times 2 to these powers.

@@ -51,6 +51,7 @@ def identified():
     return {
         "n4sid": tk.identify(train, "n4sid", order=8),
         "arx": tk.identify(train, "arx", na=4, nb=4, nk=0),
+        "arx_bilinear": tk.identify(train, "arx", na=3, nb=3, nk=1, bilinear=True),
         "sindyc": tk.identify(train, "sindyc"),
     }
 
@@ -120,7 +121,7 @@ def assert_valid(path: Path) -> None:
     assert "No semantic error" in report
 
 
-@pytest.mark.parametrize("method", ["n4sid", "arx", "sindyc"])
+@pytest.mark.parametrize("method", ["n4sid", "arx", "arx_bilinear", "sindyc"])
 def test_identified_models_export_validate_and_match_simulate(
     tmp_path, identified, validation, method
 ):

@@ -534,8 +534,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--min-gain",
         type=float,
-        default=0.5,
-        help="smallest validation gain, in points of fit, that can name a cause (default 0.5)",
+        default=0.25,
+        help="smallest validation gain, in points of fit, that can name a cause (default 0.25)",
     )
     p.add_argument("--seed", type=int, default=0, help="seed for every random choice")
     p.add_argument(

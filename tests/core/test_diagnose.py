@@ -176,8 +176,10 @@ def test_a_significant_but_small_gain_names_no_cause_below_min_gain():
     assert small.cause == "nonlinear_stiffness"
     assert 0 < small.best.gain < 0.5 and small.best.p_adjusted < 0.01
     default = diagnose(train, valid, method="arx", options=opts)
-    assert default.cause == "none" and default.settings["min_gain"] == 0.5
-    top = default.findings[0]
+    assert default.cause == "nonlinear_stiffness" and default.settings["min_gain"] == 0.25
+    strict = diagnose(train, valid, method="arx", options=opts, min_gain=0.5)
+    assert strict.cause == "none" and strict.settings["min_gain"] == 0.5
+    top = strict.findings[0]
     assert top.effect == "nonlinear_stiffness" and not top.significant
     assert top.gain == pytest.approx(small.best.gain)
 

@@ -17,6 +17,12 @@ na = nb = 3 is the smallest order whose nominal validation fit is within 0.5 poi
 ARX(8, 8, 1) (a 2-DOF mechanical system: two modes, plus one lag for the zero-order hold); an
 ARX(8, 8, 1) covers input lags 1–8 and so absorbs any delay up to about 5 frames.
 
+``min_gain`` = 0.5 points (the default is 0.25).  With a baseline at 95 %, the nominal plant
+keeps a systematic detail of how the frames sample tensions and angles: a one-sample lag or a
+1¼-sample delay on the inputs gains +0.23 to +0.40 points, p_adj < 1e-4, on every nominal draw
+(both protocols).  It is real structure, not noise, so no significance level removes it; the
+floor of 0.5 points lies between it and the weakest hidden effects (D at 45 ms: +0.59).
+
 Inputs: the measured tensions, except for effects D (actuation delay) and F (force-loop lag),
 which act between the command and the applied tension.  The load cells read the applied
 tension, so from measured forces both are invisible; the tests use the commanded tensions, as
@@ -79,6 +85,8 @@ EXPECTED = {
 PROTOCOL = {"Z": "slack", "nominal_slack": "slack"}
 SEEDS = (1, 2, 3, 4, 5, 6)
 BASELINE = {"na": 3, "nb": 3, "nk": 1, "bilinear": True}
+#: Smallest gain that names a cause with this baseline (module docstring; default 0.25).
+MIN_GAIN = 0.5
 
 
 def draw(effect: str, seed: int) -> dict:
@@ -172,7 +180,7 @@ def _run(effect: str, seed: int, protocol: str | None = None):
     protocol = protocol or PROTOCOL.get(effect, "standard")
     train, valid = plant_data(params, seed, commanded=effect in ("D", "F"), protocol=protocol)
     t0 = time.perf_counter()
-    d = diagnose(train, valid, method="arx", options=BASELINE)
+    d = diagnose(train, valid, method="arx", options=BASELINE, min_gain=MIN_GAIN)
     elapsed = time.perf_counter() - t0
     top = ", ".join(f"{f.effect} {f.gain:+.2f} (p_adj {f.p_adjusted:.1e})" for f in d.findings[:3])
     print(f"{effect} seed {seed} {params}: cause {d.cause}; {top}; {elapsed:.1f} s")
@@ -221,6 +229,6 @@ def test_a_dead_zone_below_every_tension_names_no_cause():
     """
     params = {"deadzone_on": True, "deadzone_T": 12.0, "deadzone_w": 2.0}
     train, valid = plant_data(params, 1, commanded=False)
-    d = diagnose(train, valid, method="arx", options=BASELINE)
+    d = diagnose(train, valid, method="arx", options=BASELINE, min_gain=MIN_GAIN)
     top = ", ".join(f"{f.effect} {f.gain:+.2f} (p_adj {f.p_adjusted:.1e})" for f in d.findings[:3])
     assert d.cause == "none", top

@@ -388,8 +388,8 @@ class ActuatorLag:
         if model is not None and "rate_quantile" in params:
             # a rate limit acts on every sample where it binds, so its level matters more than
             # a lag's: refine it between the quantiles (steps of 2^±½, 2^±¼ of the rate)
-            lag = best_lag if params.get("tau_s") else []
-            fine = []
+            with_lag = best_lag if params.get("tau_s") else []
+            rfine = []
             for e in self.refine:
                 rate = np.asarray(params["rate_per_s"]) * dt * 2.0**e
                 rblocks = [
@@ -398,8 +398,8 @@ class ActuatorLag:
                     if rate[m] > 0
                 ]
                 rp = {**params, "rate_per_s": [float(r / dt) for r in rate], "rate_step": e}
-                fine.append((rp, _with_input_blocks(ctx, [*rblocks, *lag])))
-            best = ctx.select(fine)
+                rfine.append((rp, _with_input_blocks(ctx, [*rblocks, *with_lag])))
+            best = ctx.select(rfine)
             if best[2] > score:
                 params, model, score = best[:3]
         return ctx.extension(params, model, score, self.description)

@@ -116,3 +116,23 @@ def test_a_biased_baseline_is_replaced_and_the_note_printed(tmp_path):
     d = json.loads(out.read_text())
     assert r.returncode == 0 and d["baseline"]["method"] == "arx"
     assert d["baseline"]["check"]["biased"] and "kept (--no-fallback)" in r.stdout
+
+
+def test_min_gain_and_a_bilinear_baseline_from_the_command_line(tmp_path):
+    tr = write_csv(tmp_path / "train.csv", _duffing(3000, 1))
+    va = write_csv(tmp_path / "valid.csv", _duffing(1500, 2))
+    args = ("diagnose", str(tr), str(va), "--inputs", "force", "--outputs", "pos")
+    opts = ("--option", "na=2", "--option", "nb=1", "--option", "bilinear=true")
+    out = tmp_path / "d.json"
+    r = run(
+        *args, *opts, "--effects", "nonlinear_stiffness", "--min-gain", "90", "--json", str(out)
+    )
+    assert r.returncode == 0, r.stderr
+    d = json.loads(out.read_text())
+    # the cubic is found (a large, significant gain) but 90 points is more than it gains
+    top = d["findings"][0]
+    assert top["cause"] == "nonlinear_stiffness" and 5 < top["gain"] < 90
+    assert top["p_adjusted"] < 0.01 and not top["significant"] and d["cause"] == "none"
+    assert d["settings"]["min_gain"] == 90.0
+    bad = run(*args, "--min-gain", "-1")
+    assert bad.returncode == 2 and "min_gain" in bad.stderr and "Traceback" not in bad.stderr

@@ -57,6 +57,12 @@ class ARX:
     bilinear : bool
         Also regress on the products ``u_m[k-nk_m] · y_j[k-1]`` of every input with every
         output (``u_m[k-1]`` when ``nk_m = 0``): input-dependent gain and stiffness.
+    criterion : str
+        ``"equation"`` (default): least squares on the one-step prediction error.
+        ``"simulation"``: start there and refine every coefficient by the free-run simulation
+        error (the output-error estimate, as MATLAB's ``oe``;
+        :func:`tendonkit.refine.refine_output_error`). Slower; better when the outputs are
+        measured with noise or the model is judged in simulation.
 
     Examples
     --------
@@ -75,6 +81,7 @@ class ARX:
     offset: bool = False
     ridge: float = 0.0
     bilinear: bool = False
+    criterion: str = "equation"
 
     def __post_init__(self) -> None:
         p = []
@@ -89,6 +96,8 @@ class ARX:
             p.append(f"ridge must be a number >= 0, found {self.ridge!r}.")
         if not isinstance(self.bilinear, bool):
             p.append(f"bilinear must be true or false, found {self.bilinear!r}.")
+        if self.criterion not in ("equation", "simulation"):
+            p.append(f"criterion must be 'equation' or 'simulation', found {self.criterion!r}.")
         if not p and self.bilinear and self.na == 0:
             p.append("bilinear needs na >= 1: the products read y[k-1].")
         if not p and self.na == 0 and max(_tup(self.nb, 1)) == 0:
@@ -123,7 +132,15 @@ class ARX:
                 f"Too few samples for arx: {rows} regression rows for {n_par} parameters per output."
             )
         with one_blas_thread():
-            return self._fit(dataset, nb, nk, lag)
+            if self.criterion == "equation":
+                return self._fit(dataset, nb, nk, lag)
+            from tendonkit.identification import without_training_fit
+            from tendonkit.refine import refine_output_error
+
+            with without_training_fit():
+                model = self._fit(dataset, nb, nk, lag)
+            refined = refine_output_error(model, dataset)
+            return build_model(self, dataset, refined.representation)
 
     def _fit(self, dataset: Dataset, nb: list[int], nk: list[int], lag: int) -> Model:
         nu, ny = dataset.nu, dataset.ny

@@ -281,6 +281,13 @@ def diagnose(
             f"training and validation data differ in signals: {train.inputs}->{train.outputs} "
             f"vs {valid.inputs}->{valid.outputs}."
         )
+    if (options or {}).get("criterion") == "simulation":
+        problems.append(
+            "criterion 'simulation': diagnose re-estimates every extension by "
+            "least squares, so the baseline must be estimated the same way (criterion "
+            "'equation'); an output-error baseline would credit the extensions with the change "
+            "of criterion instead of their cause."
+        )
     registry = effect_registry()
     names = list(effects) if effects is not None else registry.names()
     unknown = [n for n in names if n not in registry.names()]

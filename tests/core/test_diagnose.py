@@ -188,9 +188,18 @@ def test_diagnose_reports_every_problem_at_once():
     data = _arx_data(1, 300)
     other = data.select(["f1"], ["pos"])
     with pytest.raises(OptionError) as err:
-        diagnose(data, other, alpha=0.7, min_relative_gain=1.5, min_gain=-1, effects=["nope"])
+        diagnose(
+            data,
+            other,
+            alpha=0.7,
+            min_relative_gain=1.5,
+            min_gain=-1,
+            effects=["nope"],
+            options={"criterion": "simulation"},
+        )
     text = str(err.value)
     for needle in (
+        "criterion 'simulation'",
         "alpha",
         "min_relative_gain",
         "min_gain",

@@ -8,7 +8,7 @@ import pytest
 import tendonkit as tk
 from tendonkit.errors import DataError, OptionError
 from tendonkit.metrics import fit
-from tendonkit.schema import ARX, Model, Signal
+from tendonkit.schema import ARX, Block, Model, Signal
 from tendonkit.testsystems import random_state_space, simulate_truth
 
 
@@ -145,3 +145,93 @@ def test_bilinear_needs_an_output_lag():
         tk.identify(
             tk.Dataset.from_arrays(np.arange(50.0), np.arange(50.0), 1.0), "arx", bilinear="maybe"
         )
+
+
+def _oscillator_with_output_noise(seed: int, n: int) -> tuple[tk.Dataset, np.ndarray]:
+    """A lightly damped 1 Hz oscillator at 100 Hz, 5 % white noise on the measured output.
+
+    Its true model is output-error: ``y = B(q)/A(q) u + e``.  Returns the data and the true
+    discrete poles.
+    """
+    from scipy.signal import butter, cont2discrete, lfilter
+
+    rng = np.random.default_rng(seed)
+    sys_c = (np.array([[0.0, 1.0], [-40.0, -0.6]]), np.array([[0.0], [1.0]]), np.eye(1, 2), 0.0)
+    A, B, C, _, _ = cont2discrete(sys_c, 0.01)
+    u = lfilter(*butter(2, 2.0, fs=100.0), rng.standard_normal(n))
+    x, y = np.zeros(2), np.empty(n)
+    for k in range(n):
+        y[k] = (C @ x)[0]
+        x = A @ x + B[:, 0] * u[k]
+    y = y + 0.05 * y.std() * rng.standard_normal(n)
+    return tk.Dataset.from_arrays(u, y, 0.01, ("force",), ("pos",)), np.linalg.eigvals(A)
+
+
+def test_output_error_criterion_is_consistent_where_least_squares_is_biased():
+    """Least squares on an output-error system is biased (the noise enters the regressors);
+    the simulation-error estimate starts there and recovers the true poles."""
+    train, poles = _oscillator_with_output_noise(51, 6000)
+    valid, _ = _oscillator_with_output_noise(151, 6000)
+    ls = tk.identify(train, "arx", na=2, nb=2)
+    oe = tk.identify(train, "arx", na=2, nb=2, criterion="simulation")
+
+    def pole_error(m: Model) -> float:
+        got = np.roots([1.0, *[float(a[0, 0]) for a in m.representation.A]])
+        return float(np.abs(np.sort_complex(got) - np.sort_complex(poles)).max())
+
+    assert pole_error(oe) < 1e-3 < 0.1 < pole_error(ls)
+    sim_oe = tk.simulate(oe, valid.u, y=valid.y, initial="estimate")
+    sim_ls = tk.simulate(ls, valid.u, y=valid.y, initial="estimate")
+    assert fit(valid.y, sim_oe)[0] > 80.0 > 10.0 > fit(valid.y, sim_ls)[0]
+    # the provenance says how it was estimated, and the training fit is the refined model's
+    assert oe.provenance.options["criterion"] == "simulation"
+    assert oe.provenance.training_fit["pos"] > ls.provenance.training_fit["pos"] + 50
+
+
+def test_output_error_keeps_a_clipped_state_clipped():
+    """Terms that clip the recursion's state (relu of a past output with the coefficients of
+    that lag's A) follow A during the refinement, so the clip stays a clip."""
+    import dataclasses
+
+    from tendonkit.refine import refine_output_error
+    from tendonkit.terms import Factor, Term
+
+    rng = np.random.default_rng(2)
+    n = 2000
+    u = np.repeat(rng.uniform(0.0, 2.0, size=n // 40), 40)
+    y = np.zeros(n)
+    for k in range(1, n):  # a tank that overflows at 1.5, measured with noise
+        y[k] = min(0.9 * y[k - 1] + 0.12 * u[k - 1], 1.5)
+    y_meas = y + 0.02 * rng.standard_normal(n)
+    ds = tk.Dataset.from_arrays(u, y_meas, 1.0, ("pump",), ("level",))
+    ls = tk.identify(ds, "arx", na=1, nb=1)
+    rep = ls.representation
+    clip = Term((Factor("level", fn="relu", lag=1, param=1.5),))
+    start = ls.replace(  # the state clipped in the recursion and the output clipped after it
+        representation=dataclasses.replace(
+            rep, terms=(clip,), term_coefficients=rep.A[0][:, :1].T.copy()
+        ),
+        output_blocks=(Block("saturation", "level", {"lower": -1e300, "upper": 1.5}),),
+    )
+    refined = refine_output_error(start, ds)
+    new = refined.representation
+    np.testing.assert_allclose(new.term_coefficients[0], new.A[0][:, 0], atol=0)  # still tied
+    np.testing.assert_allclose(new.A[0], [[-0.9]], atol=0.01)
+    np.testing.assert_allclose(new.B[0], [[0.12]], atol=0.005)
+    sim = tk.simulate(refined, u, initial="zero")
+    assert sim.max() <= 1.5 + 1e-12  # the refined model still overflows at the level
+    assert fit(y[:, None], sim)[0] > fit(y[:, None], tk.simulate(start, u, initial="zero"))[0]
+
+
+def test_output_error_options_and_models_are_checked():
+    ds = tk.Dataset.from_arrays(np.arange(50.0), np.arange(50.0), 1.0)
+    with pytest.raises(OptionError, match="criterion must be 'equation' or 'simulation'"):
+        tk.identify(ds, "arx", criterion="oe")
+    from tendonkit.refine import refine_output_error
+
+    rng = np.random.default_rng(0)
+    u = rng.normal(size=300)
+    data = tk.Dataset.from_arrays(u, np.cumsum(u) * 0.1 + rng.normal(size=300), 1.0)
+    n4 = tk.identify(data, "n4sid", order=1)
+    with pytest.raises(OptionError, match="needs an ARX model"):
+        refine_output_error(n4, data)

@@ -169,8 +169,10 @@ def _oscillator_with_output_noise(seed: int, n: int) -> tuple[tk.Dataset, np.nda
 
 def test_output_error_criterion_is_consistent_where_least_squares_is_biased():
     """Least squares on an output-error system is biased (the noise enters the regressors);
-    the simulation-error estimate starts there and recovers the true poles."""
-    train, poles = _oscillator_with_output_noise(51, 6000)
+    the simulation-error estimate recovers the true poles.  At 2,000 samples a refinement from
+    the least-squares estimate ends in a poor local minimum (fit 9 %); the instrumental-variable
+    start avoids it."""
+    train, poles = _oscillator_with_output_noise(51, 2000)
     valid, _ = _oscillator_with_output_noise(151, 6000)
     ls = tk.identify(train, "arx", na=2, nb=2)
     oe = tk.identify(train, "arx", na=2, nb=2, criterion="simulation")

@@ -80,6 +80,44 @@ class CoulombFriction(_TermEffect):
     )
     #: Half-widths of the input play, as fractions of each input's standard deviation.
     play_fractions = (0.01, 0.02, 0.04, 0.08, 0.16)
+    #: Share of the training misfit that the force reversing with the motion must remove,
+    #: beyond a constant load, before an asymmetry (tanh²) is tried.
+    support_share = 0.05
+
+    def extend(self, ctx: Context) -> Extension | None:
+        """Friction proper first; its asymmetry only if a reversing force is supported.
+
+        The asymmetric part ``tanh²(v/ε)`` is 1 while the system moves and 0 at rest, so on
+        a record that is nearly always moving it is a constant load — gravity's structure (a
+        weight on a link that moves by small angles gained +5.0 points as gravity and +5.0 as
+        "asymmetric friction").  What sets friction apart is the force that reverses with the
+        direction of motion.  So the asymmetric candidates are tried only when ``tanh(v/ε)``
+        removes ``support_share`` of the training misfit that a constant load leaves (the
+        test is made with the constant, because a system that integrates — EMPS, a drive in
+        position control — drifts with a symmetric friction alone when its friction is not).
+        """
+
+        def builder(terms: list[Term]) -> Callable[[Dataset], Model]:
+            return lambda d: extend_with_terms(ctx.baseline, d, terms, refit=ctx.refit)
+
+        cands = self.builders(ctx)
+        proper = [c for c in cands if not c[0].get("asymmetric")]
+        asym = [c for c in cands if c[0].get("asymmetric")]
+        params, model, score, _ = ctx.select(proper)
+        if asym:
+            const: list[Term] = [Term()]
+            _, _, s0, _ = ctx.select([({}, builder(const))])
+            with_const = [
+                (p, builder([*const, *terms]))
+                for p, terms in self.candidates(ctx)
+                if not p.get("asymmetric")
+            ]
+            _, _, s1, _ = ctx.select(with_const)
+            if 100.0 - s1 <= (1.0 - self.support_share) * (100.0 - s0):
+                p2, m2, s2, _ = ctx.select(asym)
+                if m2 is not None and s2 > score:
+                    params, model, score = p2, m2, s2
+        return ctx.extension(params, model, score, self.description)
 
     def builders(self, ctx: Context) -> list[tuple[dict[str, Any], Callable[[Dataset], Model]]]:
         """Velocity-sign terms, and play on the inputs (quasi-static friction in force space).

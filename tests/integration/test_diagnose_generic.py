@@ -42,8 +42,6 @@ MISSES = {
     "not an error of that model",
     ("nonlinear_stiffness", 0.01): "the cubic dominates (ARX free-run fit 7 %); the stiffness "
     "terms gain +13.3 but p_adj 0.016 and backlash (+7.2, p_adj 0.004) is named",
-    ("gravity", 0.01): "a tie: gravity +6.77 against coulomb_friction +6.53, whose tanh² term is "
-    "a constant force while moving; parsimony picks the friction's fewer parameters",
 }
 
 

@@ -518,7 +518,7 @@ class Backlash:
     )
 
     #: Half-widths tried, as fractions of each output's standard deviation.
-    fractions = (0.01, 0.02, 0.04, 0.08, 0.16)
+    fractions = (0.01, 0.02, 0.04, 0.08, 0.16, 0.32, 0.64)
     #: Refinements of the reconstructed driven signal (see :func:`_fit_output_play`).
     refinements = 2
 

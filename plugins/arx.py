@@ -16,6 +16,12 @@ stiffness: the tendon robot's joints stiffen with the sum of the tensions, so
 ``q ≈ ρ ΔT / K(ΣT)``, which no linear model represents (nominal plant: ARX(3, 3, 1) 85 %,
 bilinear 95 % validation fit).  The products are stored as ordinary model terms, so the model
 simulates, compares and exports like any other ARX.
+
+``criterion="simulation"`` estimates the same model by its free-run simulation error (output
+error): least squares, then two steps of instrumental variables, then
+:func:`tendonkit.refine.refine_output_error` from the better start.  Least squares is biased
+when the outputs are measured with noise; on a lightly damped oscillator with 5 % output noise
+it simulates at 1 % fit, the output-error estimate at the noise ceiling (95 %), as SIPPY's OE.
 """
 
 from __future__ import annotations
@@ -72,7 +78,8 @@ class ARX:
 
     name: ClassVar[str] = "arx"
     description: ClassVar[str] = (
-        "MIMO ARX by least squares (QR solver, scaled regressors); orders per input; paper: 8, 8, 1."
+        "MIMO ARX by least squares (QR solver, scaled regressors), or by output error "
+        "(criterion='simulation'); orders per input; paper: 8, 8, 1."
     )
 
     na: int = 8

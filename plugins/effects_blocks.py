@@ -316,14 +316,20 @@ class Saturation:
 
         return build
 
-    #: Input clips at these quantiles (and one minus them).
-    input_quantiles = (0.01, 0.025, 0.05)
+    #: Input clips at these quantiles (and one minus them): a limit that binds now and then
+    #: (1 %) up to one that binds on a third of the record (a valve or a pump at its stop).
+    input_quantiles = (0.01, 0.025, 0.05, 0.1, 0.2, 0.3)
+    #: Which ends of the range are clipped.  Not the lower end alone: for an input of one sign
+    #: (a tension, a valve opening) ``max(u, c)`` is a dead zone ``max(u - c, 0)`` plus a
+    #: constant, and on the robot's slack tendons it came within 0.05 points of the dead zone.
+    input_sides = ("both", "upper")
 
     @staticmethod
-    def _input_blocks(ctx: Context, q: float) -> list[Block]:
+    def _input_blocks(ctx: Context, q: float, sides: str = "both") -> list[Block]:
         u = ctx.train.u
-        lo = np.quantile(u, q, axis=0)
-        hi = np.quantile(u, 1 - q, axis=0)
+        big = 1e300
+        lo = np.quantile(u, q, axis=0) if sides != "upper" else np.full(u.shape[1], -big)
+        hi = np.quantile(u, 1 - q, axis=0) if sides != "lower" else np.full(u.shape[1], big)
         return [
             Block("saturation", n, {"lower": float(lo[m]), "upper": float(hi[m])})
             for m, n in enumerate(ctx.train.inputs)
@@ -331,23 +337,28 @@ class Saturation:
         ]
 
     def _input_candidates(
-        self, ctx: Context
+        self, ctx: Context, quantiles: Sequence[float] | None = None, sides: Sequence[str] = ()
     ) -> list[tuple[dict[str, Any], Callable[[Dataset], Model]]]:
-        """Inputs clipped to a range at low and high quantiles."""
+        """Inputs clipped at one or both ends of their range, at quantiles of the data."""
         cands = []
-        for q in self.input_quantiles:
-            blocks = self._input_blocks(ctx, q)
-            if blocks:
-                cands.append(({"where": "inputs", "quantile": q}, _with_input_blocks(ctx, blocks)))
+        for q in self.input_quantiles if quantiles is None else quantiles:
+            for side in sides or self.input_sides:
+                blocks = self._input_blocks(ctx, q, side)
+                if blocks and 0 < q < 0.5:
+                    params = {"where": "inputs", "quantile": q, "sides": side}
+                    cands.append((params, _with_input_blocks(ctx, blocks)))
         return cands
 
     def extend(self, ctx: Context) -> Extension | None:
-        """Output clipping (at plateaus of the data) and input clipping candidates."""
+        """Output clipping (at plateaus of the data) and input clipping candidates.
+
+        The best input clip is then tried on one input at a time.
+        """
         params, model, score, _ = ctx.select(
             self._output_candidates(ctx) + self._input_candidates(ctx)
         )
         if model is not None and params.get("where") == "inputs":
-            blocks = self._input_blocks(ctx, params["quantile"])
+            blocks = self._input_blocks(ctx, params["quantile"], params["sides"])
             params, model, score = _single_inputs(ctx, params, blocks, model, score)
         return ctx.extension(params, model, score, self.description)
 

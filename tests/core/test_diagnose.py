@@ -271,3 +271,34 @@ def test_a_registered_effect_plugin_is_tried_like_the_built_ins(damping_plugin):
     assert finding.effect == "quadratic_damping" and finding.params["velocity_span"] in (1, 3)
     assert "after input changes" in finding.evidence["statistic"]
     assert d.cause == "none"  # a linear system has no drag to find
+
+
+def _process(seed: int, n: int, limit: float | None) -> Dataset:
+    """A first-order process (T = 20 s, gain 2, dt = 1 s) driven by random steps of a valve
+    (0-100 %), 1 % output noise; ``limit``: the valve's actuator stops there."""
+    rng = np.random.default_rng(seed)
+    u = np.empty(n)
+    k = 0
+    while k < n:
+        h = int(rng.integers(5, 60))
+        u[k : k + h] = rng.uniform(0.0, 100.0)
+        k += h
+    v = u if limit is None else np.minimum(u, limit)
+    a = np.exp(-1.0 / 20.0)
+    y = lfilter([0.0, 2.0 * (1.0 - a)], [1.0, -a], v)
+    y = y + 0.01 * y.std() * rng.standard_normal(n)
+    exp = Experiment(t=np.arange(n, dtype=float), u=u[:, None], y=y[:, None], name=f"s{seed}")
+    return Dataset(inputs=("valve_pct",), outputs=("temp_C",), experiments=(exp,), dt=1.0)
+
+
+def test_an_actuator_stop_that_binds_on_a_third_of_the_record_is_a_saturation():
+    """The valve stops at 70 % while the commands reach 100 %: the clip binds on ~30 % of the
+    samples, beyond the 1-5 % quantiles that a rare limit needs; only the upper end."""
+    d = diagnose(_process(1, 4000, 70.0), _process(2, 4000, 70.0))
+    assert d.cause == "saturation", [(f.effect, f.gain, f.p_adjusted) for f in d.findings]
+    assert d.best is not None and d.best.gain > 10
+    assert d.best.params["where"] == "inputs" and d.best.params["sides"] == "upper"
+    (clip,) = d.extended.input_blocks
+    assert clip.params["lower"] < -1e299 and abs(clip.params["upper"] - 70.0) < 8.0
+    plain = diagnose(_process(3, 4000, None), _process(4, 4000, None))
+    assert plain.cause == "none", [(f.effect, f.gain, f.p_adjusted) for f in plain.findings]

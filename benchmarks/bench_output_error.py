@@ -1,11 +1,11 @@
 """Output-error ARX (``arx`` with ``criterion="simulation"``) against SIPPY's OE, and least squares.
 
 The system: a lightly damped 1 Hz oscillator sampled at 100 Hz, driven by band-limited noise,
-with 5 % white noise on the measured output (an output-error system, ``y = B/A u + e``; the
-same generator as ``tests/plugins/test_arx.py``).  Every method estimates a second-order model
-(two poles, two numerator coefficients, one sample of delay) from ``N`` samples; the models are
-scored by their free-run fit on a fresh 20,000-sample record (initial state from the first
-``scipy.signal.lfilter`` from rest, the first 20 s left out) and by the largest distance of their
+with 5 % white noise on the measured output (an output-error system, ``y = B/A u + e``;
+``tendonkit.testsystems.lightly_damped_oscillator``).  Every method estimates a second-order
+model (two poles, two numerator coefficients, one sample of delay) from ``N`` samples; the
+models are scored by their free-run fit on a fresh 20,000-sample record (simulated from rest
+with ``scipy.signal.lfilter``, the first 20 s left out) and by the largest distance of their
 poles from the true ones.  Times are wall-clock seconds of the estimation call, median of three.
 
 Run from the repository root, in the project's environment with the benchmark requirements::
@@ -18,14 +18,10 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import sys
 import time
-from pathlib import Path
 from typing import Any
 
 import numpy as np
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "plugins"))
 
 METHODS = {
     "tendonkit-ls": "tendonkit arx, least squares (criterion='equation')",
@@ -71,16 +67,16 @@ def _score(b: np.ndarray, a: np.ndarray, valid: Any, poles: np.ndarray) -> tuple
 
 
 def main(argv: list[str] | None = None) -> int:
-    from test_arx import _oscillator_with_output_noise
+    from tendonkit.testsystems import lightly_damped_oscillator
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--sizes", default="2000,6000,20000")
     args = p.parse_args(argv)
-    valid, poles = _oscillator_with_output_noise(151, 20000)
+    valid, poles = lightly_damped_oscillator(20000, seed=151)
     print("| method | N | time [s] | validation fit [%] | pole error |")
     print("|---|---|---|---|---|")
     for n in (int(s) for s in args.sizes.split(",")):
-        train, _ = _oscillator_with_output_noise(51, n)
+        train, _ = lightly_damped_oscillator(n, seed=51)
         for method, label in METHODS.items():
             times = []
             for _ in range(3):

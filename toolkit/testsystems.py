@@ -72,3 +72,26 @@ def simulate_truth(
         u, y, model.dt, model.input_names, model.output_names, name=f"test-{seed}"
     )
     return ds, y0
+
+
+def lightly_damped_oscillator(
+    n_samples: int, *, noise: float = 0.05, seed: int = 0
+) -> tuple[Dataset, FloatArray]:
+    """A 1 Hz mass-spring-damper (damping ratio ≈ 0.05) sampled at 100 Hz, noise on the output.
+
+    ``ẍ = u − 0.6 ẋ − 40 x``, zero-order-held input (white noise through a 2 Hz 2nd-order
+    Butterworth), ``y = x + e`` with ``e`` white, of standard deviation ``noise`` times that of
+    ``x``.  An *output-error* system: equation-error (least-squares) ARX estimates of it are
+    biased, which makes it the standard check for output-error estimation and for diagnose's
+    baseline check.  Returns the dataset (``force`` → ``pos``) and the true discrete poles.
+    """
+    from scipy.signal import butter, cont2discrete, lfilter
+
+    rng = np.random.default_rng(seed)
+    sys_c = (np.array([[0.0, 1.0], [-40.0, -0.6]]), np.array([[0.0], [1.0]]), np.eye(1, 2), 0.0)
+    A, B, C, _, _ = cont2discrete(sys_c, 0.01)
+    u = lfilter(*butter(2, 2.0, fs=100.0), rng.standard_normal(n_samples))
+    x = ss_response(A, B, C, np.zeros((1, 1)), u[:, None], np.zeros(2))[:, 0]
+    y = x + noise * x.std() * rng.standard_normal(n_samples)
+    ds = Dataset.from_arrays(u, y, 0.01, ("force",), ("pos",), name=f"oscillator-{seed}")
+    return ds, np.linalg.eigvals(A)

@@ -13,6 +13,7 @@ from tendonkit.dataset import Dataset, Experiment
 from tendonkit.diagnose import diagnose
 from tendonkit.errors import OptionError
 from tendonkit.stats import autocorrelation_time, holm, loss_test
+from tendonkit.testsystems import lightly_damped_oscillator
 
 
 def _ar1(rng, a, n, burn=2000):
@@ -107,19 +108,7 @@ def test_noise_alone_names_no_cause(seed):
 
 def _oscillator(seed, n, noise):
     """A lightly damped 1 Hz oscillator sampled at 100 Hz; white noise on the *output*."""
-    from scipy.signal import butter, cont2discrete
-
-    rng = np.random.default_rng(seed)
-    sys_c = (np.array([[0.0, 1.0], [-40.0, -0.6]]), np.array([[0.0], [1.0]]), np.eye(1, 2), 0.0)
-    A, B, C, _, _ = cont2discrete(sys_c, 0.01)
-    u = lfilter(*butter(2, 2.0, fs=100.0), rng.standard_normal(n))
-    x, y = np.zeros(2), np.empty(n)
-    for k in range(n):
-        y[k] = (C @ x)[0]
-        x = A @ x + B[:, 0] * u[k]
-    y = y + noise * y.std() * rng.standard_normal(n)
-    exp = Experiment(t=0.01 * np.arange(n), u=u[:, None], y=y[:, None], name=f"seed{seed}")
-    return Dataset(inputs=("force",), outputs=("pos",), experiments=(exp,), dt=0.01)
+    return lightly_damped_oscillator(n, noise=noise, seed=seed)[0]
 
 
 @pytest.mark.parametrize("seed", [51, 52])

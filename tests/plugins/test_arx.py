@@ -9,7 +9,7 @@ import tendonkit as tk
 from tendonkit.errors import DataError, OptionError
 from tendonkit.metrics import fit
 from tendonkit.schema import ARX, Block, Model, Signal
-from tendonkit.testsystems import random_state_space, simulate_truth
+from tendonkit.testsystems import lightly_damped_oscillator, random_state_space, simulate_truth
 
 
 def _arx_truth() -> Model:
@@ -147,33 +147,13 @@ def test_bilinear_needs_an_output_lag():
         )
 
 
-def _oscillator_with_output_noise(seed: int, n: int) -> tuple[tk.Dataset, np.ndarray]:
-    """A lightly damped 1 Hz oscillator at 100 Hz, 5 % white noise on the measured output.
-
-    Its true model is output-error: ``y = B(q)/A(q) u + e``.  Returns the data and the true
-    discrete poles.
-    """
-    from scipy.signal import butter, cont2discrete, lfilter
-
-    rng = np.random.default_rng(seed)
-    sys_c = (np.array([[0.0, 1.0], [-40.0, -0.6]]), np.array([[0.0], [1.0]]), np.eye(1, 2), 0.0)
-    A, B, C, _, _ = cont2discrete(sys_c, 0.01)
-    u = lfilter(*butter(2, 2.0, fs=100.0), rng.standard_normal(n))
-    x, y = np.zeros(2), np.empty(n)
-    for k in range(n):
-        y[k] = (C @ x)[0]
-        x = A @ x + B[:, 0] * u[k]
-    y = y + 0.05 * y.std() * rng.standard_normal(n)
-    return tk.Dataset.from_arrays(u, y, 0.01, ("force",), ("pos",)), np.linalg.eigvals(A)
-
-
 def test_output_error_criterion_is_consistent_where_least_squares_is_biased():
     """Least squares on an output-error system is biased (the noise enters the regressors);
     the simulation-error estimate recovers the true poles.  At 2,000 samples a refinement from
     the least-squares estimate ends in a poor local minimum (fit 9 %); the instrumental-variable
     start avoids it."""
-    train, poles = _oscillator_with_output_noise(51, 2000)
-    valid, _ = _oscillator_with_output_noise(151, 6000)
+    train, poles = lightly_damped_oscillator(2000, seed=51)
+    valid, _ = lightly_damped_oscillator(6000, seed=151)
     ls = tk.identify(train, "arx", na=2, nb=2)
     oe = tk.identify(train, "arx", na=2, nb=2, criterion="simulation")
 

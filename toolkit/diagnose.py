@@ -407,7 +407,7 @@ def diagnose(
 
 #: A baseline whose training free-run error energy exceeds this multiple of a linear N4SID
 #: model's is treated as biased (:func:`check_baseline`).
-BIAS_RATIO = 4.0
+BIAS_RATIO = 2.5
 
 
 def check_baseline(baseline: Model, train: Dataset, method: str) -> dict[str, Any] | None:

@@ -362,6 +362,38 @@ class Saturation:
             params, model, score = _single_inputs(ctx, params, blocks, model, score)
         return ctx.extension(params, model, score, self.description)
 
+    def direct_test(self, ctx: Context, ext: Extension, valid: Dataset) -> dict[str, Any] | None:
+        """Do the validation data pile up at the level the extension clips the output at?
+
+        A clipped output is seen in the data, not only inferred from a better fit: the samples
+        stay at the limit (:func:`tendonkit.stats.atom_test`).  The test is made on the
+        *validation* output at the level chosen on the training data, at each clipped end
+        (Bonferroni over the ends).  Input clips are not seen in the outputs: None.
+        """
+        from tendonkit.stats import atom_test
+
+        params = ext.params
+        if params.get("where") != "output" or params.get("signal") not in valid.outputs:
+            return None
+        y = valid.y[:, valid.outputs.index(params["signal"])]
+        ends = [(s, params[s]) for s in ("upper", "lower") if params.get(s) is not None]
+        if not ends:
+            return None
+        tests = [atom_test(y, level, side).to_dict() for side, level in ends]
+        said = "; ".join(
+            f"{t['count']} samples at the {t['side']} clip level {t['level']:.6g}, at most "
+            f"{t['expected']:.2g} without a clip"
+            for t in tests
+        )
+        return {
+            "statistic": "validation output samples at the clip level, Poisson tail against "
+            "the most a smooth peak or a held level would put there (tendonkit.stats.atom_test)",
+            "summary": f"{params['signal']}: {said}",
+            "signal": params["signal"],
+            "tests": tests,
+            "p_value": min(1.0, len(tests) * min(float(t["p_value"]) for t in tests)),
+        }
+
     def signature(
         self, ctx: Context, baseline: Model, valid: Dataset, res: ResidualAnalysis
     ) -> dict[str, Any]:

@@ -368,6 +368,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 
 def render_diagnosis(summary: dict[str, Any]) -> str:
     """Plain-text summary of a diagnosis."""
+    from tendonkit.findings import evidence_notes
+
     lines = [
         f"cause: {summary['cause']}",
         f"baseline ({summary['baseline']['method']}): fit {summary['baseline']['fit']:.2f} %",
@@ -392,6 +394,7 @@ def render_diagnosis(summary: dict[str, Any]) -> str:
         )
     if summary.get("margin_to_runner_up") is not None:
         lines.append(f"margin to runner-up: {summary['margin_to_runner_up']:.2f} points")
+    lines.extend(f"note: {n}" for n in evidence_notes(summary))
     if summary.get("ambiguous"):
         lines.append(summary["ambiguous"]["statement"])
         lines.append("to tell them apart: " + summary["ambiguous"]["experiment"])

@@ -25,7 +25,10 @@ The procedure, for any registered identifier as the baseline and any registered 
    record, and gain at least ``min_gain`` points of fit (an effect size worth naming).  The p-values are Holm-adjusted over the effects tried, weighted by the effects'
    *training* gains (fixed before the validation data are looked at).  Noise alone then
    never names a cause: without structure the batch log-ratios scatter around
-   ``log(1 - δ) < 0``.
+   ``log(1 - δ) < 0``.  An effect may also test its signature directly on the validation
+   data (``direct_test``: a clipped output piles up at its level,
+   :func:`tendonkit.stats.atom_test`); the finding's p-value is then the Bonferroni
+   combination ``2·min(p_loss, p_direct)`` of the two routes.
 6. **Naming.** The significant finding with the largest gain names the cause; with none the
    cause is ``none``.  Parsimony breaks ties: a significant finding with fewer added
    parameters, at least ``tie_ratio`` of the best gain, that the best one does not beat
@@ -339,6 +342,13 @@ def diagnose(
         losses[name] = loss
         rel = float(1.0 - loss.mean() / base_loss.mean()) if base_loss.mean() > 0 else 0.0
         test = loss_test(base_loss, loss, margin=delta)
+        test_info: dict[str, Any] = {**test.to_dict(), "margin": delta}
+        p_value = test.p_value
+        direct = _direct_test(effect, ctx, ext, valid)
+        if direct is not None:
+            # Two routes to the same finding: Bonferroni over them keeps its level.
+            p_value = min(1.0, 2.0 * min(test.p_value, direct["p_value"]))
+            test_info.update(loss_p_value=test.p_value, direct=direct)
         gain = _mean(ext_fit) - _mean(base_fit) if np.all(np.isfinite(f)) else -math.inf
         evidence = effect.signature(ctx, baseline, valid, valid_res) or {}
         raw.append(
@@ -348,13 +358,13 @@ def diagnose(
                 "gain": float(gain),
                 "fit": ext_fit,
                 "relative_gain": rel,
-                "p_value": test.p_value,
+                "p_value": p_value,
                 "params": ext.params,
                 "evidence": evidence,
                 "description": ext.description,
                 "model": ext.model,
                 "n_params": ext.n_params - added_parameters(baseline),
-                "test": {**test.to_dict(), "margin": delta, "train_gain": ext.train_gain},
+                "test": {**test_info, "train_gain": ext.train_gain},
                 "train_gain": ext.train_gain,
             }
         )
@@ -403,6 +413,35 @@ def diagnose(
         named_effect=best.effect if best else None,
         baseline_check=check,
     )
+
+
+def _direct_test(
+    effect: Any, ctx: Context, ext: Extension, valid: Dataset
+) -> dict[str, Any] | None:
+    """An effect's direct test of its signature on the validation data, if it has one.
+
+    Optional effect method ``direct_test(ctx, extension, valid) -> dict | None``; the dict
+    holds a ``p_value`` under the hypothesis that the data do not show the effect where the
+    extension puts it (a saturation: the output piled up at the clip level).
+    """
+    method = getattr(effect, "direct_test", None)
+    if not callable(method):
+        return None
+    out = method(ctx, ext, valid)
+    if out is None:
+        return None
+    try:
+        p = float(out["p_value"])
+    except (TypeError, KeyError, ValueError):
+        p = math.nan
+    if not 0.0 <= p <= 1.0:
+        from tendonkit.errors import PluginError
+
+        raise PluginError(
+            f"effect {getattr(effect, 'name', effect)!r}:",
+            [f"direct_test() must return None or a dict with a p_value in [0, 1], got {out!r}."],
+        )
+    return {**out, "p_value": p}
 
 
 #: A baseline whose training free-run error energy exceeds this multiple of a linear N4SID

@@ -9,6 +9,7 @@ import numpy as np
 
 from tendonkit.dataset import Dataset
 from tendonkit.diagnose import Diagnosis, _simulate_all
+from tendonkit.findings import evidence_notes
 from tendonkit.report import Report
 
 
@@ -62,6 +63,8 @@ def write_report(
         )
         if diagnosis.margin is not None:
             rep.text(f"Margin to the runner-up: {diagnosis.margin:.2f} points.")
+        for note in evidence_notes(d):
+            rep.text(note[0].upper() + note[1:])
     if diagnosis.ambiguous:
         rep.text(
             diagnosis.ambiguous["statement"]

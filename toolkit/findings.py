@@ -192,6 +192,44 @@ class Diagnosis:
         return next((f for f in self.findings if f.cause != best.cause), None)
 
 
+def evidence_notes(summary: dict[str, Any]) -> list[str]:
+    """Sentences on how the named cause was established, from :meth:`Diagnosis.to_dict`.
+
+    Said when it matters: the cause was seen in the data by the effect's direct test (then
+    the fit gain alone may not be significant), or a finding of another cause gains more on
+    the validation data without being significant.
+    """
+    named = summary.get("named_effect")
+    findings = summary.get("findings", [])
+    best = next((f for f in findings if f["effect"] == named), None)
+    if best is None:
+        return []
+    notes = []
+    direct = best.get("test", {}).get("direct")
+    if direct:
+        notes.append(
+            f"seen in the data: {direct.get('summary', direct['statistic'])} "
+            f"(p = {direct['p_value']:.2g}); the fit "
+            f"gain alone: p = {best['test']['loss_p_value']:.2g} (both before adjustment)."
+        )
+    larger = [f for f in findings if f["cause"] != best["cause"] and f["gain"] > best["gain"]]
+    if larger:
+        top = larger[0]
+        p_adj = top.get("p_adjusted", top["p_value"])
+        if top["significant"]:
+            notes.append(
+                f"{top['cause']} gains more ({top['gain']:+.2f} points, p_adj = {p_adj:.2g}) "
+                f"with more parameters ({top['n_params']} against {best['n_params']}) and is "
+                f"not significantly better: the simpler {best['cause']} is named."
+            )
+        else:
+            notes.append(
+                f"{top['cause']} gains more ({top['gain']:+.2f} points) but is not significant "
+                f"(p_adj = {p_adj:.2g}): a possible second effect, not shown by these data."
+            )
+    return notes
+
+
 def _mean(d: dict[str, float]) -> float:
     return float(np.mean(list(d.values()))) if d else float("nan")
 

@@ -46,7 +46,10 @@ def tendonkit_register_effects(registry: EffectRegistry) -> None:
     Call ``registry.add(effect)`` once per effect.  An effect has a ``cause`` from the fixed
     vocabulary (:data:`tendonkit.registry.CAUSES`), a ``signature(...)`` test on data and
     residuals, and an ``extend(...)`` that returns the baseline model extended with the matching
-    structure, its parameters estimated from the training data.
+    structure, its parameters estimated from the training data.  Optionally,
+    ``direct_test(ctx, extension, valid)`` tests the signature on the validation data where the
+    extension puts it and returns a dict with a ``p_value`` (or None); diagnose then accepts the
+    finding on either route, Bonferroni-corrected (``docs/diagnose.md``, *Direct evidence*).
 
     Parameters
     ----------

@@ -3,7 +3,8 @@
 Used by :func:`tendonkit.diagnose.diagnose` (the reasoning and the calibration are in
 ``docs/diagnose.md``): :func:`loss_test` compares per-sample losses over contiguous batches
 sized by the :func:`autocorrelation_time` of their difference, and :func:`holm` adjusts the
-p-values of several such tests (optionally weighted).
+p-values of several such tests (optionally weighted).  :func:`atom_test` is a direct test of
+one signature, a signal piled up at its extreme value (a clip).
 """
 
 from __future__ import annotations
@@ -167,3 +168,96 @@ def holm(p_values: Sequence[float], weights: Sequence[float] | None = None) -> l
         out[i] = running
         remaining -= w[i]
     return out
+
+
+@dataclass(frozen=True)
+class AtomTest:
+    """Test that a signal piles up at a level at the end of its range (a clip).
+
+    Attributes
+    ----------
+    p_value : float
+        ``P(X >= count)`` for ``X ~ Poisson(expected)``.
+    count : int
+        Samples at the level (within the tolerance).
+    expected : float
+        The most samples the level could hold without a clip (see :func:`atom_test`).
+    beyond : int
+        Samples past the level (a clip allows none).
+    level : float
+        The level tested.
+    side : str
+        ``"upper"`` or ``"lower"``.
+    """
+
+    p_value: float
+    count: int
+    expected: float
+    beyond: int
+    level: float
+    side: str
+
+    def to_dict(self) -> dict[str, float | int | str]:
+        """Plain data."""
+        return dataclasses.asdict(self)
+
+
+def atom_test(y: FloatArray, level: float, side: str, *, window: float = 0.01) -> AtomTest:
+    """Is ``level`` an atom at the end of ``y``'s range, more samples than no clip puts there?
+
+    A clipped signal stays at its limit while the signal behind it would have gone past it.
+    Without a clip, the samples at the end of the range are the top of a peak, and a smooth
+    peak ``y ≈ c - a t²`` puts ``N(d) ∝ √d`` samples within a distance ``d`` of its top: a
+    bin of width ``h`` at the top holds ``N_w √h / (√w - √h)`` samples if ``N_w`` lie in the
+    rest of a window of width ``w`` below it — more than any other bin of that width, and a
+    sampled or noisy peak holds fewer.  A held level (a step response at rest, a quantised
+    sensor at rest) also repeats a value, and it can do so anywhere in the range.  So the
+    null hypothesis is that the level holds no more samples than the larger of the smooth-peak
+    bound and the busiest value inside the range (not at either end: the other end may be
+    clipped too), and the test is a Poisson tail at that mean
+    (at least 1).  A sample past the level contradicts a clip there: the p-value is then 1.
+
+    Parameters
+    ----------
+    y : array (n,)
+        The signal.
+    level : float
+        The level (the clip's value).
+    side : {"upper", "lower"}
+        Which end of the range.
+    window : float
+        ``w`` as a fraction of the signal's range.
+
+    Returns
+    -------
+    AtomTest
+    """
+    from scipy import stats
+
+    if side not in ("upper", "lower"):
+        raise ValueError(f"side must be 'upper' or 'lower', found {side!r}")
+    v = np.asarray(y, dtype=float)
+    v = v[np.isfinite(v)]
+    c = float(level)
+    if side == "lower":
+        v, c = -v, -c
+    span = float(np.ptp(v)) if v.size else 0.0
+    if span == 0:
+        return AtomTest(1.0, int(v.size), float(v.size), 0, float(level), side)
+    tol = 1e-6 * span
+    at = np.abs(v - c) <= tol
+    count = int(np.sum(at))
+    beyond = int(np.sum(v > c + tol))
+    # The other end of the range may be clipped too: its atom is not a held level.
+    inside = ~at & (v > float(np.min(v)) + tol)
+    values, counts = np.unique(v[inside], return_counts=True)
+    busiest = float(counts.max()) if counts.size else 0.0
+    gaps = np.diff(values)
+    gaps = gaps[gaps > tol]
+    h = max(2.0 * tol, float(np.min(gaps)) if gaps.size else 0.0)
+    w = max(window * span, 4.0 * h)
+    n_w = float(np.sum((v < c - tol) & (v > c - w)))
+    peak = n_w * math.sqrt(h) / (math.sqrt(w) - math.sqrt(h))
+    expected = max(1.0, peak, busiest)
+    p = 1.0 if beyond or count == 0 else float(stats.poisson.sf(count - 1, expected))
+    return AtomTest(p, count, expected, beyond, float(level), side)

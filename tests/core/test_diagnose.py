@@ -11,8 +11,8 @@ from scipy.signal import lfilter
 
 from tendonkit.dataset import Dataset, Experiment
 from tendonkit.diagnose import diagnose
-from tendonkit.errors import OptionError
-from tendonkit.stats import autocorrelation_time, holm, loss_test
+from tendonkit.errors import OptionError, PluginError
+from tendonkit.stats import atom_test, autocorrelation_time, holm, loss_test
 from tendonkit.testsystems import lightly_damped_oscillator
 
 
@@ -61,6 +61,45 @@ def test_loss_test_detects_a_consistent_improvement_and_respects_the_margin():
 def test_loss_test_counts_a_diverged_alternative_as_no_evidence():
     base = np.ones(500)
     assert loss_test(base, np.full(500, np.nan)).p_value == 1.0
+
+
+def _smooth(rng, n: int, band: float) -> np.ndarray:
+    from scipy.signal import butter
+
+    y = lfilter(*butter(2, band), rng.standard_normal(n))
+    return y / y.std()
+
+
+def test_atom_test_keeps_its_level_on_peaks_quantised_signals_and_held_levels():
+    """No clip: smooth, noisy and quantised signals (down to 10 levels per std, where the top
+    level holds a whole peak's dwell) and held steps never reach p < 0.01 at either end."""
+    rng = np.random.default_rng(1)
+    worst = 1.0
+    for trial in range(160):
+        y = _smooth(rng, int(rng.choice([500, 2000, 10000])), float(rng.choice([0.01, 0.05, 0.2])))
+        step = (None, 0.01, 0.1, 0.003)[trial % 4]
+        if step is not None:
+            y = np.round((y + 0.002 * rng.standard_normal(len(y))) / step) * step
+        for side, level in (("upper", y.max()), ("lower", y.min())):
+            worst = min(worst, atom_test(y, level, side).p_value)
+    held = np.round(np.repeat(rng.uniform(0, 1, 50), 100), 2)  # a step test at rest
+    for side, level in (("upper", held.max()), ("lower", held.min())):
+        worst = min(worst, atom_test(held, level, side).p_value)
+    assert worst > 0.1
+
+
+def test_atom_test_finds_a_clip_at_either_or_both_ends():
+    rng = np.random.default_rng(2)
+    y = np.round(_smooth(rng, 1000, 0.05) / 0.003) * 0.003
+    hi, lo = np.quantile(y, 0.98), np.quantile(y, 0.03)
+    up = atom_test(np.minimum(y, hi), hi, "upper")
+    assert up.p_value < 1e-6 and up.count >= 20 and up.beyond == 0
+    both = np.clip(y, lo, hi)  # each end's atom is not the other's "held level"
+    assert atom_test(both, hi, "upper").p_value < 1e-6
+    assert atom_test(both, lo, "lower").p_value < 1e-6
+    assert atom_test(np.minimum(y, hi), hi - 0.1, "upper").p_value == 1.0  # samples beyond it
+    with pytest.raises(ValueError, match="side"):
+        atom_test(y, hi, "top")
 
 
 def test_holm_equal_weights_is_the_classic_procedure():
@@ -291,3 +330,35 @@ def test_an_actuator_stop_that_binds_on_a_third_of_the_record_is_a_saturation():
     assert clip.params["lower"] < -1e299 and abs(clip.params["upper"] - 70.0) < 8.0
     plain = diagnose(_process(3, 4000, None), _process(4, 4000, None))
     assert plain.cause == "none", [(f.effect, f.gain, f.p_adjusted) for f in plain.findings]
+
+
+class _Claims(QuadraticDamping):
+    """An effect whose direct test returns no p-value: a broken plugin, reported as such."""
+
+    name = "claims"
+
+    def direct_test(self, ctx, ext, valid):
+        return {"p_value": "certain"}
+
+
+def test_a_direct_test_without_a_p_value_is_a_plugin_error():
+    import types
+
+    from tendonkit import hookimpl
+    from tendonkit.manager import register, unregister
+
+    plugin = types.SimpleNamespace(
+        tendonkit_register_effects=hookimpl(lambda registry: registry.add(_Claims()))
+    )
+    name = register(plugin, name="claims-test")
+    try:
+        with pytest.raises(PluginError, match=r"direct_test.*p_value"):
+            diagnose(
+                _arx_data(41, 1500),
+                _arx_data(42, 1000),
+                method="arx",
+                options={"na": 2, "nb": 1},
+                effects=["claims"],
+            )
+    finally:
+        unregister(name)

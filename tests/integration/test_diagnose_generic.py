@@ -165,3 +165,33 @@ def test_a_moderately_biased_baseline_falls_back_and_the_effect_is_named(effect)
     if effect != "none":
         assert 2.5 < check["error_ratio"] < 4.0 and d.baseline_method == "n4sid"
         assert d.best is not None and d.best.gain > 5
+
+
+# -- a sensor that clips: the saturation is seen in the data -------------------------------------
+
+
+def _clipped(dt: float, seed: int, hi: float, lo: float, n: int = 4000) -> Dataset:
+    """The first oscillator (no effect, 2 % noise) read by a sensor whose range is [lo, hi]."""
+    data = _data("none", dt, seed, n)
+    exps = [Experiment(t=e.t, u=e.u, y=np.clip(e.y, lo, hi), name=e.name) for e in data.experiments]
+    return data.with_experiments(exps)
+
+
+@pytest.mark.parametrize("dt", [0.05, 0.01])
+@pytest.mark.parametrize("ends", ["upper", "both"])
+def test_a_sensor_range_is_a_saturation_seen_in_the_data(dt, ends):
+    """The output is clipped at the 97.5 % quantile of the training response (and at the 2.5 %
+    one): ~2.5 % of the samples at each clipped end.  The validation output piles up at the
+    level chosen on the training data, which names the cause even where the fit gain alone
+    is not significant (N4SID at dt 0.01, docs/diagnose.md)."""
+    y = np.concatenate([e.y[:, 0] for e in _data("none", dt, 1).experiments])
+    hi = float(np.quantile(y, 0.975))
+    lo = float(np.quantile(y, 0.025)) if ends == "both" else -np.inf
+    d = diagnose(_clipped(dt, 1, hi, lo), _clipped(dt, 2, hi, lo))
+    top = ", ".join(f"{f.effect} {f.gain:+.2f} (p_adj {f.p_adjusted:.1e})" for f in d.findings[:3])
+    assert d.cause == "saturation", top
+    best = d.best
+    assert best is not None and best.gain > 2 and best.params["where"] == "output"
+    assert best.params["upper"] == pytest.approx(hi)
+    assert (best.params["lower"] is None) == (ends == "upper")
+    assert best.test["direct"]["p_value"] < 1e-10

@@ -208,9 +208,11 @@ def evidence_notes(summary: dict[str, Any]) -> list[str]:
     direct = best.get("test", {}).get("direct")
     if direct:
         notes.append(
-            f"seen in the data: {direct.get('summary', direct['statistic'])} "
-            f"(p = {direct['p_value']:.2g}); the fit "
-            f"gain alone: p = {best['test']['loss_p_value']:.2g} (both before adjustment)."
+            "seen in the data"
+            + (f": {what}" if (what := direct.get("summary") or direct.get("statistic")) else "")
+            + f" (p = {direct['p_value']:.2g}); the fit gain alone: "
+            f"p = {best['test']['loss_p_value']:.2g} (before the adjustment for trying every "
+            "effect)."
         )
     larger = [f for f in findings if f["cause"] != best["cause"] and f["gain"] > best["gain"]]
     if larger:

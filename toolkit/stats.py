@@ -177,45 +177,85 @@ class AtomTest:
     Attributes
     ----------
     p_value : float
-        ``P(X >= count)`` for ``X ~ Poisson(expected)``.
+        ``P(X >= count / run)`` for ``X ~ Poisson(expected / run)``; 1 when the level is not
+        a candidate clip (a sample past it, no interior to compare with, a rest).
     count : int
         Samples at the level (within the tolerance).
     expected : float
         The most samples the level could hold without a clip (see :func:`atom_test`).
+    run : float
+        Typical length of a run of repeated values inside the range (1 for a noisy signal).
     beyond : int
         Samples past the level (a clip allows none).
     level : float
         The level tested.
     side : str
         ``"upper"`` or ``"lower"``.
+    input_motion : float or None
+        Largest standard deviation of an input over the samples at the level, relative to its
+        standard deviation over the record (None without inputs).
+    reason : str
+        Why the p-value is 1 without a test, else ``""``.
     """
 
     p_value: float
     count: int
     expected: float
+    run: float
     beyond: int
     level: float
     side: str
+    input_motion: float | None = None
+    reason: str = ""
 
-    def to_dict(self) -> dict[str, float | int | str]:
+    def to_dict(self) -> dict[str, float | int | str | None]:
         """Plain data."""
         return dataclasses.asdict(self)
 
 
-def atom_test(y: FloatArray, level: float, side: str, *, window: float = 0.01) -> AtomTest:
+#: The inputs must move at the level (:func:`atom_test`): their largest standard deviation
+#: over the samples there, relative to the record's.
+MIN_INPUT_MOTION = 0.25
+
+
+def _runs(same: NDArray[np.bool_]) -> list[tuple[int, int]]:
+    """``(start, stop)`` of the runs of True in ``same``."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], same.astype(np.int8), [0]])))
+    return list(zip(edges[::2].tolist(), edges[1::2].tolist()))
+
+
+def atom_test(
+    y: FloatArray,
+    level: float,
+    side: str,
+    *,
+    u: FloatArray | None = None,
+    window: float = 0.01,
+) -> AtomTest:
     """Is ``level`` an atom at the end of ``y``'s range, more samples than no clip puts there?
 
     A clipped signal stays at its limit while the signal behind it would have gone past it.
-    Without a clip, the samples at the end of the range are the top of a peak, and a smooth
-    peak ``y ≈ c - a t²`` puts ``N(d) ∝ √d`` samples within a distance ``d`` of its top: a
-    bin of width ``h`` at the top holds ``N_w √h / (√w - √h)`` samples if ``N_w`` lie in the
-    rest of a window of width ``w`` below it — more than any other bin of that width, and a
-    sampled or noisy peak holds fewer.  A held level (a step response at rest, a quantised
-    sensor at rest) also repeats a value, and it can do so anywhere in the range.  So the
-    null hypothesis is that the level holds no more samples than the larger of the smooth-peak
-    bound and the busiest value inside the range (not at either end: the other end may be
-    clipped too), and the test is a Poisson tail at that mean
-    (at least 1).  A sample past the level contradicts a clip there: the p-value is then 1.
+    The null hypothesis is "no clip", and three things other than a clip repeat a value:
+
+    - **a peak.** A peak ``y ≈ c - a t^(2m)`` puts ``N(d) ∝ d^(1/2m)`` samples within ``d`` of
+      its top.  The bound takes ``m = 2`` (peaks flat to fourth order, such as a flattened
+      periodic wave): a bin of width ``h`` at the top holds ``N_w r / (1 - r)``,
+      ``r = (h / w)^(1/4)``, if ``N_w`` samples lie in the rest of a window ``w`` below it;
+    - **a held level** (a quantised or noise-free signal at rest) anywhere in the range: the
+      level may hold as many samples as the busiest value inside the range (not at either end,
+      which may be clipped too);
+    - **dwelling**: where repeated values come in runs (a quantised signal that moves slowly),
+      samples are not independent.  Counts are divided by the typical run length inside the
+      range (``Σ L² / Σ L`` over the runs of equal consecutive values; 1 for a noisy signal),
+      and the test is a Poisson tail of ``count / run`` at mean ``expected / run``, where
+      ``expected`` is the larger of the two bounds above and 1.
+
+    A rest at the top of the range — a step test held longest at its highest level — is not a
+    clip either, and only the inputs tell it apart: with ``u``, the inputs must move while the
+    output stays (the largest standard deviation of an input over the samples at the level is
+    at least :data:`MIN_INPUT_MOTION` of its standard deviation over the record); a clip
+    reached at a constant input is therefore not detected.  The p-value is also 1 when a
+    sample lies past the level or fewer than 10 samples lie inside the range.
 
     Parameters
     ----------
@@ -225,6 +265,8 @@ def atom_test(y: FloatArray, level: float, side: str, *, window: float = 0.01) -
         The level (the clip's value).
     side : {"upper", "lower"}
         Which end of the range.
+    u : array (n, m), optional
+        The inputs at the same samples.
     window : float
         ``w`` as a fraction of the signal's range.
 
@@ -237,27 +279,53 @@ def atom_test(y: FloatArray, level: float, side: str, *, window: float = 0.01) -
     if side not in ("upper", "lower"):
         raise ValueError(f"side must be 'upper' or 'lower', found {side!r}")
     v = np.asarray(y, dtype=float)
-    v = v[np.isfinite(v)]
+    ok = np.isfinite(v)
+    inputs = None if u is None else np.asarray(u, dtype=float).reshape(len(v), -1)[ok]
+    v = v[ok]
     c = float(level)
     if side == "lower":
         v, c = -v, -c
     span = float(np.ptp(v)) if v.size else 0.0
+
+    def untested(count: int, beyond: int, reason: str, motion: float | None = None) -> AtomTest:
+        return AtomTest(1.0, count, float(count), 1.0, beyond, float(level), side, motion, reason)
+
     if span == 0:
-        return AtomTest(1.0, int(v.size), float(v.size), 0, float(level), side)
+        return untested(int(v.size), 0, "the signal is constant")
     tol = 1e-6 * span
     at = np.abs(v - c) <= tol
     count = int(np.sum(at))
     beyond = int(np.sum(v > c + tol))
-    # The other end of the range may be clipped too: its atom is not a held level.
+    if beyond or count == 0:
+        return untested(count, beyond, "samples lie past the level" if beyond else "no sample")
     inside = ~at & (v > float(np.min(v)) + tol)
+    if int(np.sum(inside)) < 10:
+        return untested(count, beyond, "fewer than 10 samples inside the range")
+    motion = None
+    if inputs is not None and inputs.size:
+        sd = np.std(inputs, axis=0)
+        moving = sd > 0
+        motion = (
+            float(np.max(np.std(inputs[at][:, moving], axis=0) / sd[moving]))
+            if np.any(moving) and count > 1
+            else 0.0
+        )
+        if motion < MIN_INPUT_MOTION:
+            return untested(count, beyond, "the inputs rest while the output stays", motion)
     values, counts = np.unique(v[inside], return_counts=True)
-    busiest = float(counts.max()) if counts.size else 0.0
+    busiest = float(counts.max())
     gaps = np.diff(values)
     gaps = gaps[gaps > tol]
     h = max(2.0 * tol, float(np.min(gaps)) if gaps.size else 0.0)
-    w = max(window * span, 4.0 * h)
+    w = max(window * span, 16.0 * h)
     n_w = float(np.sum((v < c - tol) & (v > c - w)))
-    peak = n_w * math.sqrt(h) / (math.sqrt(w) - math.sqrt(h))
-    expected = max(1.0, peak, busiest)
-    p = 1.0 if beyond or count == 0 else float(stats.poisson.sf(count - 1, expected))
-    return AtomTest(p, count, expected, beyond, float(level), side)
+    r = (h / w) ** 0.25
+    expected = max(1.0, n_w * r / (1.0 - r), busiest)
+    # Runs of equal consecutive values inside the range (a run ends at either end level).
+    same = np.zeros(len(v), dtype=bool)
+    same[1:] = (np.abs(np.diff(v)) <= tol) & inside[1:] & inside[:-1]
+    lengths = np.array([b - a + 1 for a, b in _runs(same)], dtype=float)
+    singles = float(np.sum(inside)) - float(lengths.sum())
+    run = float((np.sum(lengths**2) + singles) / (lengths.sum() + singles))
+    p = float(stats.poisson.sf(math.ceil(count / run) - 1, expected / run))
+    return AtomTest(p, count, expected, run, beyond, float(level), side, motion)

@@ -83,9 +83,31 @@ def test_atom_test_keeps_its_level_on_peaks_quantised_signals_and_held_levels():
         for side, level in (("upper", y.max()), ("lower", y.min())):
             worst = min(worst, atom_test(y, level, side).p_value)
     held = np.round(np.repeat(rng.uniform(0, 1, 50), 100), 2)  # a step test at rest
-    for side, level in (("upper", held.max()), ("lower", held.min())):
-        worst = min(worst, atom_test(held, level, side).p_value)
+    unequal = np.repeat([0.2, 0.5, 0.9], [100, 100, 150])  # the top held longest
+    t = np.arange(6000) * 0.01
+    flat = 9 * np.sin(2 * np.pi * 0.37 * t) + np.sin(6 * np.pi * 0.37 * t)  # flat to 4th order
+    for y in (held, unequal, flat, np.round(flat / 0.0012) * 0.0012):
+        for side, level in (("upper", y.max()), ("lower", y.min())):
+            worst = min(worst, atom_test(y, level, side).p_value)
     assert worst > 0.1
+
+
+def test_atom_test_does_not_take_a_rest_for_a_clip():
+    """A step test held longest at its top level, read by a noise-free 12-bit sensor: the
+    output repeats its top value far more than any other, which only the inputs explain —
+    they rest there too."""
+    dt = 0.01
+    t = np.arange(6000) * dt
+    u = np.where((t // 10) % 2 == 0, 2.0, 8.0)
+    a = np.exp(-dt / 0.5)
+    y = np.round(lfilter([1 - a], [1, -a], u, zi=[2 * a])[0] / (10 / 4096)) * (10 / 4096)
+    alone = atom_test(y, y.max(), "upper")
+    assert alone.p_value < 1e-6  # the output alone cannot tell a rest from a clip
+    rest = atom_test(y, y.max(), "upper", u=u[:, None])
+    assert rest.p_value == 1.0 and "rest" in rest.reason and rest.input_motion == 0.0
+    # the same output level reached while the input keeps moving is a clip
+    moving = np.sin(2.0 * t)[:, None]
+    assert atom_test(y, y.max(), "upper", u=moving).p_value < 1e-6
 
 
 def test_atom_test_finds_a_clip_at_either_or_both_ends():

@@ -366,42 +366,48 @@ class Saturation:
         """Do the validation data pile up at the level the extension clips the output at?
 
         A clipped output is seen in the data, not only inferred from a better fit: the samples
-        stay at the limit (:func:`tendonkit.stats.atom_test`).  The test is made on the
-        *validation* output at the level chosen on the training data, at each clipped end
-        (Bonferroni over the ends).  Only for a clip added to the baseline's dynamics, which
-        leaves the simulation unchanged until the clip acts, so that the gain is the clip's.
-        Input clips are not seen in the outputs: None.
+        stay at the limit while the baseline's simulation (the output without a clip) moves
+        (:func:`tendonkit.stats.atom_test`).  The test is made on the *validation* output at
+        the level chosen on the training data; with two clipped ends, each must be seen (the
+        larger p-value).  Only for a clip added to the baseline's dynamics, which leaves the
+        simulation unchanged until the clip acts, so that the gain is the clip's.  Input clips
+        are not seen in the outputs: None.
         """
+        from tendonkit.diagnose import _simulate_all
+        from tendonkit.simulate import _aligned
         from tendonkit.stats import atom_test
 
         params = ext.params
-        if params.get("where") != "output" or params.get("signal") not in valid.outputs:
+        names = ctx.baseline.output_names
+        if params.get("where") != "output" or params.get("signal") not in names:
             return None
         if params.get("refit_unclipped"):
             # Re-identified dynamics differ from the baseline everywhere: the gain would not be
             # the clip's alone, so the clip seen in the data does not vouch for it.
             return None
-        y = valid.y[:, valid.outputs.index(params["signal"])]
         ends = [(s, params[s]) for s in ("upper", "lower") if params.get(s) is not None]
         if not ends:
             return None
-        tests = [atom_test(y, level, side, u=valid.u).to_dict() for side, level in ends]
+        j = list(names).index(params["signal"])
+        y = _aligned(ctx.baseline, valid).y[:, j]
+        free = _simulate_all(ctx.baseline, valid)[:, j]
+        tests = [atom_test(y, level, side, reference=free).to_dict() for side, level in ends]
         said = "; ".join(
             f"{t['side']} clip level {t['level']:.6g}: {t['reason']}"
             if t["reason"]
             else f"{t['count']} samples at the {t['side']} clip level {t['level']:.6g} while "
-            f"the inputs move, at most {t['expected']:.2g} without a clip"
+            f"the model moves, at most {t['expected']:.2g} without a clip"
             + (f" (runs of {t['run']:.2g} samples counted as one)" if t["run"] > 1.5 else "")
             for t in tests
         )
         return {
-            "statistic": "validation output samples at the clip level while the inputs move, "
-            "Poisson tail against the most a peak or a held level would put there "
-            "(tendonkit.stats.atom_test)",
+            "statistic": "validation output samples at the clip level while the baseline's "
+            "simulation moves, Poisson tail against the most a peak or a held level would put "
+            "there (tendonkit.stats.atom_test); every clipped end must be seen",
             "summary": f"{params['signal']}: {said}",
             "signal": params["signal"],
             "tests": tests,
-            "p_value": min(1.0, len(tests) * min(float(t["p_value"]) for t in tests)),
+            "p_value": max(float(t["p_value"]) for t in tests),
         }
 
     def signature(

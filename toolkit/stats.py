@@ -191,9 +191,10 @@ class AtomTest:
         The level tested.
     side : str
         ``"upper"`` or ``"lower"``.
-    input_motion : float or None
-        Largest standard deviation of an input over the samples at the level, relative to its
-        standard deviation over the record (None without inputs).
+    motion : float or None
+        Standard deviation of the reference (the model's output without a clip) over the
+        samples at the level, relative to its standard deviation over the record (None
+        without a reference).
     reason : str
         Why the p-value is 1 without a test, else ``""``.
     """
@@ -205,7 +206,7 @@ class AtomTest:
     beyond: int
     level: float
     side: str
-    input_motion: float | None = None
+    motion: float | None = None
     reason: str = ""
 
     def to_dict(self) -> dict[str, float | int | str | None]:
@@ -213,9 +214,9 @@ class AtomTest:
         return dataclasses.asdict(self)
 
 
-#: The inputs must move at the level (:func:`atom_test`): their largest standard deviation
-#: over the samples there, relative to the record's.
-MIN_INPUT_MOTION = 0.25
+#: The reference must move at the level (:func:`atom_test`): its standard deviation over the
+#: samples there, relative to the record's.
+MIN_MOTION = 0.25
 
 
 def _runs(same: NDArray[np.bool_]) -> list[tuple[int, int]]:
@@ -229,7 +230,7 @@ def atom_test(
     level: float,
     side: str,
     *,
-    u: FloatArray | None = None,
+    reference: FloatArray | None = None,
     window: float = 0.01,
 ) -> AtomTest:
     """Is ``level`` an atom at the end of ``y``'s range, more samples than no clip puts there?
@@ -251,10 +252,12 @@ def atom_test(
       ``expected`` is the larger of the two bounds above and 1.
 
     A rest at the top of the range — a step test held longest at its highest level — is not a
-    clip either, and only the inputs tell it apart: with ``u``, the inputs must move while the
-    output stays (the largest standard deviation of an input over the samples at the level is
-    at least :data:`MIN_INPUT_MOTION` of its standard deviation over the record); a clip
-    reached at a constant input is therefore not detected.  The p-value is also 1 when a
+    clip either, and only a model of the output tells it apart: with ``reference``, what the
+    output would do without a clip (the baseline's free-run simulation: it responds to the
+    inputs that matter, with their delays), the reference must move while the output stays
+    (its standard deviation over the samples at the level is at least :data:`MIN_MOTION` of
+    its standard deviation over the record); a clip reached at rest is therefore not
+    detected.  The p-value is also 1 when a
     sample lies past the level or fewer than 10 samples lie inside the range.
 
     Parameters
@@ -265,8 +268,8 @@ def atom_test(
         The level (the clip's value).
     side : {"upper", "lower"}
         Which end of the range.
-    u : array (n, m), optional
-        The inputs at the same samples.
+    reference : array (n,), optional
+        What the output would be without a clip, at the same samples.
     window : float
         ``w`` as a fraction of the signal's range.
 
@@ -280,7 +283,7 @@ def atom_test(
         raise ValueError(f"side must be 'upper' or 'lower', found {side!r}")
     v = np.asarray(y, dtype=float)
     ok = np.isfinite(v)
-    inputs = None if u is None else np.asarray(u, dtype=float).reshape(len(v), -1)[ok]
+    ref = None if reference is None else np.asarray(reference, dtype=float).reshape(-1)
     v = v[ok]
     c = float(level)
     if side == "lower":
@@ -302,16 +305,19 @@ def atom_test(
     if int(np.sum(inside)) < 10:
         return untested(count, beyond, "fewer than 10 samples inside the range")
     motion = None
-    if inputs is not None and inputs.size:
-        sd = np.std(inputs, axis=0)
-        moving = sd > 0
+    if ref is not None:
+        if len(ref) != len(ok):
+            raise ValueError(f"reference has {len(ref)} samples, the signal {len(ok)}")
+        r_ok = ref[ok]
+        sd = float(np.std(r_ok[np.isfinite(r_ok)])) if np.any(np.isfinite(r_ok)) else 0.0
+        at_ref = r_ok[at]
         motion = (
-            float(np.max(np.std(inputs[at][:, moving], axis=0) / sd[moving]))
-            if np.any(moving) and count > 1
+            float(np.std(at_ref) / sd)
+            if sd > 0 and count > 1 and np.all(np.isfinite(at_ref))
             else 0.0
         )
-        if motion < MIN_INPUT_MOTION:
-            return untested(count, beyond, "the inputs rest while the output stays", motion)
+        if motion < MIN_MOTION:
+            return untested(count, beyond, "the model rests there too (not a clip)", motion)
     values, counts = np.unique(v[inside], return_counts=True)
     busiest = float(counts.max())
     gaps = np.diff(values)

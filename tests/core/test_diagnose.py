@@ -94,20 +94,22 @@ def test_atom_test_keeps_its_level_on_peaks_quantised_signals_and_held_levels():
 
 def test_atom_test_does_not_take_a_rest_for_a_clip():
     """A step test held longest at its top level, read by a noise-free 12-bit sensor: the
-    output repeats its top value far more than any other, which only the inputs explain —
-    they rest there too."""
+    output repeats its top value far more than any other, which only a model of the output
+    explains — without a clip it would rest there too."""
     dt = 0.01
     t = np.arange(6000) * dt
     u = np.where((t // 10) % 2 == 0, 2.0, 8.0)
     a = np.exp(-dt / 0.5)
-    y = np.round(lfilter([1 - a], [1, -a], u, zi=[2 * a])[0] / (10 / 4096)) * (10 / 4096)
+    free = lfilter([1 - a], [1, -a], u, zi=[2 * a])[0]  # the output without a clip
+    y = np.round(free / (10 / 4096)) * (10 / 4096)
     alone = atom_test(y, y.max(), "upper")
     assert alone.p_value < 1e-6  # the output alone cannot tell a rest from a clip
-    rest = atom_test(y, y.max(), "upper", u=u[:, None])
-    assert rest.p_value == 1.0 and "rest" in rest.reason and rest.input_motion == 0.0
-    # the same output level reached while the input keeps moving is a clip
-    moving = np.sin(2.0 * t)[:, None]
-    assert atom_test(y, y.max(), "upper", u=moving).p_value < 1e-6
+    rest = atom_test(y, y.max(), "upper", reference=free)
+    assert rest.p_value == 1.0 and "rests" in rest.reason and rest.motion < 0.05
+    # the same pile-up where the model would have kept moving is a clip
+    assert atom_test(y, y.max(), "upper", reference=free + 3 * np.sin(2.0 * t)).p_value < 1e-6
+    with pytest.raises(ValueError, match="reference"):
+        atom_test(y, y.max(), "upper", reference=free[:-1])
 
 
 def test_atom_test_finds_a_clip_at_either_or_both_ends():

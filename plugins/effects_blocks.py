@@ -389,20 +389,23 @@ class Saturation:
         if not ends:
             return None
         j = list(names).index(params["signal"])
-        y = _aligned(ctx.baseline, valid).y[:, j]
+        data = _aligned(ctx.baseline, valid)
+        y = data.y[:, j]
         free = _simulate_all(ctx.baseline, valid)[:, j]
-        tests = [atom_test(y, level, side, reference=free).to_dict() for side, level in ends]
+        tests = [
+            atom_test(y, level, side, reference=free, u=data.u).to_dict() for side, level in ends
+        ]
         said = "; ".join(
             f"{t['side']} clip level {t['level']:.6g}: {t['reason']}"
             if t["reason"]
             else f"{t['count']} samples at the {t['side']} clip level {t['level']:.6g} while "
-            f"the model moves, at most {t['expected']:.2g} without a clip"
+            f"the model and the inputs move, at most {t['expected']:.2g} without a clip"
             + (f" (runs of {t['run']:.2g} samples counted as one)" if t["run"] > 1.5 else "")
             for t in tests
         )
         return {
             "statistic": "validation output samples at the clip level while the baseline's "
-            "simulation moves, Poisson tail against the most a peak or a held level would put "
+            "simulation and the inputs move, Poisson tail against the most a peak or a held level would put "
             "there (tendonkit.stats.atom_test); every clipped end must be seen",
             "summary": f"{params['signal']}: {said}",
             "signal": params["signal"],

@@ -195,6 +195,11 @@ class AtomTest:
         Standard deviation of the reference (the model's output without a clip) over the
         samples at the level, relative to its standard deviation over the record (None
         without a reference).
+    input_motion : float or None
+        The same for the inputs (the largest over the inputs; None without inputs).
+    arrival : float or None
+        Median speed ``|y[k-1] - y[k-2]|`` at which the signal arrives at the level (``k``
+        the first sample of a run there), relative to the median of the non-zero ``|Δy|``.
     reason : str
         Why the p-value is 1 without a test, else ``""``.
     """
@@ -207,6 +212,8 @@ class AtomTest:
     level: float
     side: str
     motion: float | None = None
+    input_motion: float | None = None
+    arrival: float | None = None
     reason: str = ""
 
     def to_dict(self) -> dict[str, float | int | str | None]:
@@ -214,9 +221,12 @@ class AtomTest:
         return dataclasses.asdict(self)
 
 
-#: The reference must move at the level (:func:`atom_test`): its standard deviation over the
-#: samples there, relative to the record's.
+#: The reference and the inputs must move at the level (:func:`atom_test`): their standard
+#: deviation over the samples there, relative to the record's.
 MIN_MOTION = 0.25
+#: The signal must arrive at the level moving (:func:`atom_test`): the median speed of its
+#: arrivals relative to its median non-zero step.
+MIN_ARRIVAL = 0.5
 
 
 def _runs(same: NDArray[np.bool_]) -> list[tuple[int, int]]:
@@ -231,6 +241,7 @@ def atom_test(
     side: str,
     *,
     reference: FloatArray | None = None,
+    u: FloatArray | None = None,
     window: float = 0.01,
 ) -> AtomTest:
     """Is ``level`` an atom at the end of ``y``'s range, more samples than no clip puts there?
@@ -256,8 +267,13 @@ def atom_test(
     output would do without a clip (the baseline's free-run simulation: it responds to the
     inputs that matter, with their delays), the reference must move while the output stays
     (its standard deviation over the samples at the level is at least :data:`MIN_MOTION` of
-    its standard deviation over the record); a clip reached at rest is therefore not
-    detected.  The p-value is also 1 when a
+    its standard deviation over the record), and so must the inputs ``u`` (the largest of
+    them): a model alone drifts where it is wrong (a stuck drive at its end positions), the
+    inputs alone move where the output lags them or does not depend on them.  A clip reached
+    at rest is therefore not detected.  Without a model, the way the signal arrives tells most
+    rests from clips: a clip cuts a moving signal, a system settles into a rest with a speed
+    that vanishes.  The median speed one step before each arrival must be at least
+    :data:`MIN_ARRIVAL` of the signal's median non-zero step.  The p-value is also 1 when a
     sample lies past the level or fewer than 10 samples lie inside the range.
 
     Parameters
@@ -270,6 +286,8 @@ def atom_test(
         Which end of the range.
     reference : array (n,), optional
         What the output would be without a clip, at the same samples.
+    u : array (n, m), optional
+        The inputs at the same samples.
     window : float
         ``w`` as a fraction of the signal's range.
 
@@ -290,8 +308,17 @@ def atom_test(
         v, c = -v, -c
     span = float(np.ptp(v)) if v.size else 0.0
 
-    def untested(count: int, beyond: int, reason: str, motion: float | None = None) -> AtomTest:
-        return AtomTest(1.0, count, float(count), 1.0, beyond, float(level), side, motion, reason)
+    def untested(
+        count: int,
+        beyond: int,
+        reason: str,
+        motion: float | None = None,
+        inp: float | None = None,
+        arrival: float | None = None,
+    ) -> AtomTest:
+        return AtomTest(
+            1.0, count, float(count), 1.0, beyond, float(level), side, motion, inp, arrival, reason
+        )
 
     if span == 0:
         return untested(int(v.size), 0, "the signal is constant")
@@ -304,6 +331,14 @@ def atom_test(
     inside = ~at & (v > float(np.min(v)) + tol)
     if int(np.sum(inside)) < 10:
         return untested(count, beyond, "fewer than 10 samples inside the range")
+    steps = np.abs(np.diff(v))
+    typical = float(np.median(steps[steps > tol])) if np.any(steps > tol) else 0.0
+    starts = np.flatnonzero(at[2:] & ~at[1:-1]) + 2
+    arrival = float(np.median(steps[starts - 2]) / typical) if starts.size and typical > 0 else 0.0
+    if arrival < MIN_ARRIVAL:
+        return untested(
+            count, beyond, "the signal settles there (a rest, not a clip)", arrival=arrival
+        )
     motion = None
     if ref is not None:
         if len(ref) != len(ok):
@@ -317,7 +352,28 @@ def atom_test(
             else 0.0
         )
         if motion < MIN_MOTION:
-            return untested(count, beyond, "the model rests there too (not a clip)", motion)
+            return untested(
+                count, beyond, "the model rests there too (not a clip)", motion, arrival=arrival
+            )
+    input_motion = None
+    if u is not None:
+        inputs = np.asarray(u, dtype=float).reshape(len(ok), -1)[ok]
+        sd_u = np.std(inputs, axis=0)
+        live = sd_u > 0
+        input_motion = (
+            float(np.max(np.std(inputs[at][:, live], axis=0) / sd_u[live]))
+            if np.any(live) and count > 1
+            else 0.0
+        )
+        if input_motion < MIN_MOTION:
+            return untested(
+                count,
+                beyond,
+                "the inputs rest there too (not a clip)",
+                motion,
+                input_motion,
+                arrival,
+            )
     values, counts = np.unique(v[inside], return_counts=True)
     busiest = float(counts.max())
     gaps = np.diff(values)
@@ -334,4 +390,6 @@ def atom_test(
     singles = float(np.sum(inside)) - float(lengths.sum())
     run = float((np.sum(lengths**2) + singles) / (lengths.sum() + singles))
     p = float(stats.poisson.sf(math.ceil(count / run) - 1, expected / run))
-    return AtomTest(p, count, expected, run, beyond, float(level), side, motion)
+    return AtomTest(
+        p, count, expected, run, beyond, float(level), side, motion, input_motion, arrival
+    )

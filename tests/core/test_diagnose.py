@@ -93,23 +93,37 @@ def test_atom_test_keeps_its_level_on_peaks_quantised_signals_and_held_levels():
 
 
 def test_atom_test_does_not_take_a_rest_for_a_clip():
-    """A step test held longest at its top level, read by a noise-free 12-bit sensor: the
-    output repeats its top value far more than any other, which only a model of the output
-    explains — without a clip it would rest there too."""
+    """A step test held longest at its top level, read by a noise-free 12-bit sensor, repeats
+    its top value far more than any other.  A slow plant settles into that rest (its speed
+    vanishes), which the output shows; a plant faster than the sampling jumps there like a
+    clip, and then only a model (it rests too) or the inputs (they rest too) tell."""
     dt = 0.01
     t = np.arange(6000) * dt
     u = np.where((t // 10) % 2 == 0, 2.0, 8.0)
+    u[(t > 30) & (t < 50)] = 8.0  # the top held longest
+    q = 10 / 4096
     a = np.exp(-dt / 0.5)
-    free = lfilter([1 - a], [1, -a], u, zi=[2 * a])[0]  # the output without a clip
-    y = np.round(free / (10 / 4096)) * (10 / 4096)
-    alone = atom_test(y, y.max(), "upper")
-    assert alone.p_value < 1e-6  # the output alone cannot tell a rest from a clip
-    rest = atom_test(y, y.max(), "upper", reference=free)
-    assert rest.p_value == 1.0 and "rests" in rest.reason and rest.motion < 0.05
-    # the same pile-up where the model would have kept moving is a clip
-    assert atom_test(y, y.max(), "upper", reference=free + 3 * np.sin(2.0 * t)).p_value < 1e-6
+    slow = np.round(lfilter([1 - a], [1, -a], u, zi=[2 * a])[0] / q) * q
+    settles = atom_test(slow, slow.max(), "upper")
+    assert settles.p_value == 1.0 and "settles" in settles.reason and settles.arrival < 0.1
+    # Ramps of 0.3 s between random levels held 0.5 s, the top held 20 s; a plant that follows
+    # within a sample arrives at each rest at full speed, like at a clip.
+    levels = np.random.default_rng(3).uniform(2.0, 7.0, 120)
+    levels[60:100] = 8.0
+    knots = np.arange(120) * 0.5
+    u = np.interp(t, np.ravel([knots, knots + 0.3]), np.ravel([np.r_[2.0, levels[:-1]], levels]))
+    fast = np.round(u / q) * q
+    jump = atom_test(fast, fast.max(), "upper")
+    assert jump.p_value < 1e-6 and jump.arrival > 0.5  # the output alone: like a clip
+    rest = atom_test(fast, fast.max(), "upper", reference=u)
+    assert rest.p_value == 1.0 and "model rests" in rest.reason and rest.motion < 0.05
+    moving = u + 3 * np.sin(2.0 * t)  # a model that would have kept moving ...
+    idle = atom_test(fast, fast.max(), "upper", reference=moving, u=u[:, None])
+    assert idle.p_value == 1.0 and "inputs rest" in idle.reason  # ... under inputs at rest
+    both = atom_test(fast, fast.max(), "upper", reference=moving, u=moving[:, None])
+    assert both.p_value < 1e-6
     with pytest.raises(ValueError, match="reference"):
-        atom_test(y, y.max(), "upper", reference=free[:-1])
+        atom_test(fast, fast.max(), "upper", reference=u[:-1])
 
 
 def test_atom_test_finds_a_clip_at_either_or_both_ends():

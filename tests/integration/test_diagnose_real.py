@@ -99,7 +99,8 @@ def test_cascaded_tanks_is_saturation(tmp_path):
     # ... and the user is told both, and that a larger gain of another cause is unproven.
     text = render_diagnosis(d.to_dict())
     assert (
-        "seen in the data: y: 37 samples at the upper clip level 10 while the model moves" in text
+        "seen in the data: y: 37 samples at the upper clip level 10 while the model and the inputs move"
+        in text
     )
     assert "the fit gain alone: p = 0." in text
     assert "nonlinear_stiffness gains more" in text and "not significant" in text

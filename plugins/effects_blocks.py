@@ -374,6 +374,7 @@ class Saturation:
         are not seen in the outputs: None.
         """
         from tendonkit.diagnose import _simulate_all
+        from tendonkit.metrics import fit
         from tendonkit.simulate import _aligned
         from tendonkit.stats import atom_test
 
@@ -392,8 +393,10 @@ class Saturation:
         data = _aligned(ctx.baseline, valid)
         y = data.y[:, j]
         free = _simulate_all(ctx.baseline, valid)[:, j]
+        judge = float(fit(y[:, None], free[:, None])[0])
         tests = [
-            atom_test(y, level, side, reference=free, u=data.u).to_dict() for side, level in ends
+            atom_test(y, level, side, reference=free, reference_fit=judge, u=data.u).to_dict()
+            for side, level in ends
         ]
         said = "; ".join(
             f"{t['side']} clip level {t['level']:.6g}: {t['reason']}"

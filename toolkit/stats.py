@@ -195,8 +195,11 @@ class AtomTest:
         Standard deviation of the reference (the model's output without a clip) over the
         samples at the level, relative to its standard deviation over the record (None
         without a reference).
+    past : float or None
+        Share of the samples at the level where the reference lies past it (None without a
+        reference).
     input_motion : float or None
-        The same for the inputs (the largest over the inputs; None without inputs).
+        The same as ``motion`` for the inputs (the largest over them; None without inputs).
     arrival : float or None
         Median speed ``|y[k-1] - y[k-2]|`` at which the signal arrives at the level (``k``
         the first sample of a run there), relative to the median of the non-zero ``|Δy|``.
@@ -212,6 +215,7 @@ class AtomTest:
     level: float
     side: str
     motion: float | None = None
+    past: float | None = None
     input_motion: float | None = None
     arrival: float | None = None
     reason: str = ""
@@ -224,6 +228,9 @@ class AtomTest:
 #: The reference and the inputs must move at the level (:func:`atom_test`): their standard
 #: deviation over the samples there, relative to the record's.
 MIN_MOTION = 0.25
+#: The reference tells a clip from a rest only if it fits the signal at least this well
+#: (percent): a poor model drifts where it is wrong.
+MIN_JUDGE_FIT = 50.0
 #: The signal must arrive at the level moving (:func:`atom_test`): the median speed of its
 #: arrivals relative to its median non-zero step.
 MIN_ARRIVAL = 0.5
@@ -241,6 +248,7 @@ def atom_test(
     side: str,
     *,
     reference: FloatArray | None = None,
+    reference_fit: float | None = None,
     u: FloatArray | None = None,
     window: float = 0.01,
 ) -> AtomTest:
@@ -265,10 +273,12 @@ def atom_test(
     A rest at the top of the range — a step test held longest at its highest level — is not a
     clip either, and only a model of the output tells it apart: with ``reference``, what the
     output would do without a clip (the baseline's free-run simulation: it responds to the
-    inputs that matter, with their delays), the reference must move while the output stays
-    (its standard deviation over the samples at the level is at least :data:`MIN_MOTION` of
-    its standard deviation over the record), and so must the inputs ``u`` (the largest of
-    them): a model alone drifts where it is wrong (a stuck drive at its end positions), the
+    inputs that matter, with their delays), must go past the level on at least half of the
+    samples there or move while the output stays (its standard deviation over the samples at
+    the level at least :data:`MIN_MOTION` of its standard deviation over the record); and it
+    is a judge only if it fits the signal by at least :data:`MIN_JUDGE_FIT` (``reference_fit``):
+    a poor model drifts where it is wrong (a stuck drive at its end positions).  The inputs ``u``
+    must move too (the largest of them, by :data:`MIN_MOTION`): a model alone can drift, the
     inputs alone move where the output lags them or does not depend on them.  A clip reached
     at rest is therefore not detected.  Without a model, the way the signal arrives tells most
     rests from clips: a clip cuts a moving signal, a system settles into a rest with a speed
@@ -286,6 +296,8 @@ def atom_test(
         Which end of the range.
     reference : array (n,), optional
         What the output would be without a clip, at the same samples.
+    reference_fit : float, optional
+        The reference's fit to the signal (percent).
     u : array (n, m), optional
         The inputs at the same samples.
     window : float
@@ -315,9 +327,21 @@ def atom_test(
         motion: float | None = None,
         inp: float | None = None,
         arrival: float | None = None,
+        past: float | None = None,
     ) -> AtomTest:
         return AtomTest(
-            1.0, count, float(count), 1.0, beyond, float(level), side, motion, inp, arrival, reason
+            1.0,
+            count,
+            float(count),
+            1.0,
+            beyond,
+            float(level),
+            side,
+            motion,
+            past,
+            inp,
+            arrival,
+            reason,
         )
 
     if span == 0:
@@ -339,22 +363,22 @@ def atom_test(
         return untested(
             count, beyond, "the signal settles there (a rest, not a clip)", arrival=arrival
         )
-    motion = None
+    motion = past = None
     if ref is not None:
         if len(ref) != len(ok):
             raise ValueError(f"reference has {len(ref)} samples, the signal {len(ok)}")
-        r_ok = ref[ok]
+        r_ok = ref[ok] if side == "upper" else -ref[ok]
         sd = float(np.std(r_ok[np.isfinite(r_ok)])) if np.any(np.isfinite(r_ok)) else 0.0
         at_ref = r_ok[at]
-        motion = (
-            float(np.std(at_ref) / sd)
-            if sd > 0 and count > 1 and np.all(np.isfinite(at_ref))
-            else 0.0
-        )
-        if motion < MIN_MOTION:
-            return untested(
-                count, beyond, "the model rests there too (not a clip)", motion, arrival=arrival
-            )
+        finite = bool(np.all(np.isfinite(at_ref)))
+        motion = float(np.std(at_ref) / sd) if sd > 0 and count > 1 and finite else 0.0
+        past = float(np.mean(at_ref > c)) if finite else 0.0
+        if reference_fit is not None and not reference_fit >= MIN_JUDGE_FIT:
+            why = f"the model fits {reference_fit:.0f} %: too poor to tell a clip from a rest"
+            return untested(count, beyond, why, motion, arrival=arrival, past=past)
+        if past < 0.5 and motion < MIN_MOTION:
+            why = "the model rests there too (not a clip)"
+            return untested(count, beyond, why, motion, arrival=arrival, past=past)
     input_motion = None
     if u is not None:
         inputs = np.asarray(u, dtype=float).reshape(len(ok), -1)[ok]
@@ -373,6 +397,7 @@ def atom_test(
                 motion,
                 input_motion,
                 arrival,
+                past,
             )
     values, counts = np.unique(v[inside], return_counts=True)
     busiest = float(counts.max())
@@ -391,5 +416,5 @@ def atom_test(
     run = float((np.sum(lengths**2) + singles) / (lengths.sum() + singles))
     p = float(stats.poisson.sf(math.ceil(count / run) - 1, expected / run))
     return AtomTest(
-        p, count, expected, run, beyond, float(level), side, motion, input_motion, arrival
+        p, count, expected, run, beyond, float(level), side, motion, past, input_motion, arrival
     )

@@ -118,10 +118,18 @@ def test_atom_test_does_not_take_a_rest_for_a_clip():
     rest = atom_test(fast, fast.max(), "upper", reference=u)
     assert rest.p_value == 1.0 and "model rests" in rest.reason and rest.motion < 0.05
     moving = u + 3 * np.sin(2.0 * t)  # a model that would have kept moving ...
+    u_moving = moving[:, None]
     idle = atom_test(fast, fast.max(), "upper", reference=moving, u=u[:, None])
     assert idle.p_value == 1.0 and "inputs rest" in idle.reason  # ... under inputs at rest
-    both = atom_test(fast, fast.max(), "upper", reference=moving, u=moving[:, None])
+    both = atom_test(fast, fast.max(), "upper", reference=moving, u=u_moving)
     assert both.p_value < 1e-6
+    # a model that fits less than half is no judge of what the output would have done
+    poor = atom_test(fast, fast.max(), "upper", reference=moving, reference_fit=30.0, u=u_moving)
+    assert poor.p_value == 1.0 and "too poor" in poor.reason
+    # a model that goes past the level there speaks for a clip even where it does not move
+    above = np.where(fast >= fast.max(), fast.max() + 0.5, u)
+    past = atom_test(fast, fast.max(), "upper", reference=above, reference_fit=90.0, u=u_moving)
+    assert past.p_value < 1e-6 and past.past == 1.0 and past.motion < 0.05
     with pytest.raises(ValueError, match="reference"):
         atom_test(fast, fast.max(), "upper", reference=u[:-1])
 

@@ -38,7 +38,7 @@ def plant_data(effect: dict[str, Any], seed: int = 1) -> tuple[Any, Any]:
     from tendonkit.dataset import Dataset, Experiment
     from tendonkit.fmu._config import PlantConfig
     from tendonkit.fmu.plant import Plant
-    from tendonkit.protocol import circles, pseudo_random
+    from tendonkit.robot.protocol import circles, pseudo_random
 
     cfg = PlantConfig(noise_on=True, seed=seed, **effect)
 

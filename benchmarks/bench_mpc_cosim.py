@@ -6,7 +6,7 @@ sensor noise) the script collects training data through the plant FMU, identifie
 60 s petal co-simulation with
 
 * the linear MPC (N4SID model) and the nonlinear MPC (SINDYc model), tuned settings of
-  :data:`tendonkit.cosim.DEFAULTS` (horizon 20, Clarabel);
+  :data:`tendonkit.robot.cosim.DEFAULTS` (horizon 20, Clarabel);
 * on the *design path* (cvxpy ``problem.solve`` every step, DPP re-use) and on the *fast path*
   (cvxpy's parameter-affine data fed to a persistent Clarabel solver);
 * and the open-loop kinematic controller for the tracking baseline.
@@ -78,11 +78,11 @@ def wait_quiet(limit: float, timeout: float = 900.0) -> float:
 def models_for(plant: str, folder: Path) -> tuple[Path, dict[str, Any]]:
     """Build the noisy plant FMU, collect training data, identify N4SID and SINDYc."""
     import tendonkit as tk
-    from tendonkit.collect import collect
     from tendonkit.dataset import Dataset
     from tendonkit.fmu.build import build_plant_fmu
     from tendonkit.fmu.plant import PlantConfig
-    from tendonkit.protocol import circles, pseudo_random
+    from tendonkit.robot.collect import collect
+    from tendonkit.robot.protocol import circles, pseudo_random
 
     fmu = build_plant_fmu(folder / f"{plant}.fmu", PlantConfig.preset(plant).replace(noise_on=True))
     parts = [
@@ -115,7 +115,13 @@ def stats(ms: np.ndarray) -> dict[str, float]:
 
 
 def bench(plant: str, duration: float, folder: Path, quiet: float | None) -> list[dict[str, Any]]:
-    from tendonkit.cosim import ControllerSettings, make_controller, make_reference, open_loop, run
+    from tendonkit.robot.cosim import (
+        ControllerSettings,
+        make_controller,
+        make_reference,
+        open_loop,
+        run,
+    )
 
     fmu, models = models_for(plant, folder)
     ref = make_reference("petal", duration=duration, speed=PETALS[plant])

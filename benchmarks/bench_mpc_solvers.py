@@ -30,9 +30,9 @@ import time
 
 import numpy as np
 
-from tendonkit._mpc_examples import random_tendon_model, tendon_sparse_map
-from tendonkit._mpc_nonlinear import SparseMapDynamics
 from tendonkit.mpc import LinearMPC, NonlinearMPC
+from tendonkit.mpc.examples import random_tendon_model, tendon_sparse_map
+from tendonkit.mpc.nonlinear import SparseMapDynamics
 from tendonkit.realize import to_state_space
 from tendonkit.schema import Model
 

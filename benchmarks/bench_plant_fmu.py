@@ -6,7 +6,7 @@ least disturbed one; the median is printed too):
 * ``plant.run`` — the plant alone, vectorised over the whole record (its upper bound);
 * ``plant.step`` — the plant alone, one frame per call (what an FMU step must do);
 * ``fmu raw`` — the FMU through fmpy's ctypes functions with pre-built value-reference arrays
-  (:class:`tendonkit.collect.PlantSession`, as ``tendonkit collect`` drives it), with the time
+  (:class:`tendonkit.robot.collect.PlantSession`, as ``tendonkit collect`` drives it), with the time
   split into ``fmi2SetReal``, ``fmi2DoStep`` and ``fmi2GetReal``;
 * ``fmu fmpy`` — the same loop through fmpy's convenience methods (``setReal`` / ``doStep`` /
   ``getReal`` with Python lists), as typical user code does;
@@ -56,7 +56,7 @@ def bench_plant(config: Any, u: np.ndarray, repeat: int) -> dict[str, Any]:
 
 
 def bench_fmu_raw(path: Path, u: np.ndarray, repeat: int) -> dict[str, Any]:
-    from tendonkit.collect import PlantSession
+    from tendonkit.robot.collect import PlantSession
 
     totals, parts = [], []
     for _ in range(repeat):
@@ -98,7 +98,7 @@ def bench_fmu_fmpy(path: Path, u: np.ndarray, repeat: int) -> dict[str, Any]:
     from fmpy import extract, read_model_description
     from fmpy.fmi2 import FMU2Slave
 
-    from tendonkit.collect import INPUTS, OUTPUTS
+    from tendonkit.robot.collect import INPUTS, OUTPUTS
 
     md = read_model_description(str(path))
     refs = {v.name: v.valueReference for v in md.modelVariables}
@@ -131,7 +131,7 @@ def bench_fmu_fmpy(path: Path, u: np.ndarray, repeat: int) -> dict[str, Any]:
 def bench_simulate(path: Path, u: np.ndarray, repeat: int) -> dict[str, Any]:
     from fmpy import simulate_fmu
 
-    from tendonkit.collect import INPUTS, OUTPUTS
+    from tendonkit.robot.collect import INPUTS, OUTPUTS
 
     n = len(u)
     signals = np.zeros(n, dtype=[("time", float)] + [(name, float) for name in INPUTS])
@@ -161,7 +161,7 @@ def main() -> None:
 
     from tendonkit.fmu.build import build_plant_fmu
     from tendonkit.fmu.plant import PlantConfig
-    from tendonkit.protocol import circles
+    from tendonkit.robot.protocol import circles
 
     u = circles().u
     n = len(u)

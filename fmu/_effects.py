@@ -12,8 +12,8 @@ from functools import lru_cache
 import numpy as np
 import scipy.linalg
 
-from tendonkit.kinematics import gravity_torque
 from tendonkit.robot import N_JOINTS, RobotParameters
+from tendonkit.robot.kinematics import gravity_torque
 
 #: Where in the frame the held nonlinear remainder is evaluated, as a fraction of h: the angles
 #: are predicted as q̂ = q + PREDICT·h·q̇ from the state at the frame start.  Spec §9 uses the

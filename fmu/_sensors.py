@@ -13,8 +13,8 @@ import numpy as np
 import scipy.signal
 
 from tendonkit.fmu._effects import biquad_step
-from tendonkit.kinematics import forward_kinematics
 from tendonkit.robot import N_JOINTS
+from tendonkit.robot.kinematics import forward_kinematics
 
 #: Sensor-noise rows are drawn in blocks of this many frames (one generator call per block).
 _NOISE_BLOCK = 64

@@ -39,8 +39,8 @@ import numpy as np
 from pythonfmu import Fmi2Causality, Fmi2Slave, Real
 from pythonfmu.enums import Fmi2Initial, Fmi2Status, Fmi2Variability
 
-from tendonkit.kinematics import expand_joints, forward_kinematics
 from tendonkit.robot import PAPER_RATIOS, RobotParameters
+from tendonkit.robot.kinematics import expand_joints, forward_kinematics
 from tendonkit.schema import Model
 from tendonkit.stepper import Stepper
 

@@ -51,8 +51,8 @@ from tendonkit.fmu._effects import (
 )
 from tendonkit.fmu._linear import linearise
 from tendonkit.fmu._sensors import SensorModel
-from tendonkit.kinematics import scalar_forward_kinematics
 from tendonkit.robot import N_JOINTS, N_TENDONS, RobotParameters
+from tendonkit.robot.kinematics import scalar_forward_kinematics
 
 __all__ = [
     "MOUNTS",

@@ -19,7 +19,7 @@ simulates, compares and exports like any other ARX.
 
 ``criterion="simulation"`` estimates the same model by its free-run simulation error (output
 error): least squares, then two steps of instrumental variables, then
-:func:`tendonkit.refine.refine_output_error` from the better start.  Least squares is biased
+:func:`tendonkit.plugins._output_error.refine_output_error` from the better start.  Least squares is biased
 when the outputs are measured with noise; on a lightly damped oscillator with 5 % output noise
 it simulates at 1 % fit, the output-error estimate at the noise ceiling (95 %), as SIPPY's OE.
 """
@@ -67,7 +67,7 @@ class ARX:
         ``"equation"`` (default): least squares on the one-step prediction error.
         ``"simulation"``: start there and refine every coefficient by the free-run simulation
         error (the output-error estimate, as MATLAB's ``oe``;
-        :func:`tendonkit.refine.refine_output_error`). Slower; better when the outputs are
+        :func:`tendonkit.plugins._output_error.refine_output_error`). Slower; better when the outputs are
         measured with noise or the model is judged in simulation.
 
     Examples
@@ -142,7 +142,7 @@ class ARX:
             if self.criterion == "equation":
                 return self._fit(dataset, nb, nk, lag)
             from tendonkit.identification import without_training_fit
-            from tendonkit.refine import refine_output_error
+            from tendonkit.plugins._output_error import refine_output_error
 
             with without_training_fit():
                 start = self._output_error_start(dataset, nb, nk, lag)
@@ -158,7 +158,7 @@ class ARX:
         Y = np.vstack([e.y[lag:] for e in dataset.experiments])
         terms = bilinear_terms(dataset, nk) if self.bilinear else ()
         if terms:
-            from tendonkit.augment import term_columns
+            from tendonkit.diagnose.extend import term_columns
 
             Phi = np.hstack(
                 [
@@ -272,8 +272,8 @@ def _regressors(
 
 
 def _solve(Phi: FloatArray, Y: FloatArray, ridge: float) -> FloatArray:
-    """Scaled, QR-reduced least squares (:func:`tendonkit.augment.scaled_lstsq`)."""
-    from tendonkit.augment import scaled_lstsq
+    """Scaled, QR-reduced least squares (:func:`tendonkit.diagnose.extend.scaled_lstsq`)."""
+    from tendonkit.diagnose.extend import scaled_lstsq
 
     return scaled_lstsq(Phi, Y, ridge)
 

@@ -19,11 +19,11 @@ from typing import Any
 
 import numpy as np
 
-from tendonkit.augment import drop_samples, refit_with_input_blocks
 from tendonkit.dataset import Dataset, Experiment
 from tendonkit.diagnose import Context, Extension
+from tendonkit.diagnose.extend import drop_samples, refit_with_input_blocks
+from tendonkit.diagnose.residuals import ResidualAnalysis
 from tendonkit.hookspecs import hookimpl
-from tendonkit.residuals import ResidualAnalysis
 from tendonkit.schema import ARX, Block, Model
 from tendonkit.terms import Factor, Term
 
@@ -367,16 +367,16 @@ class Saturation:
 
         A clipped output is seen in the data, not only inferred from a better fit: the samples
         stay at the limit while the baseline's simulation (the output without a clip) moves
-        (:func:`tendonkit.stats.atom_test`).  The test is made on the *validation* output at
+        (:func:`tendonkit.diagnose.stats.atom_test`).  The test is made on the *validation* output at
         the level chosen on the training data; with two clipped ends, each must be seen (the
         larger p-value).  Only for a clip added to the baseline's dynamics, which leaves the
         simulation unchanged until the clip acts, so that the gain is the clip's.  Input clips
         are not seen in the outputs: None.
         """
-        from tendonkit.diagnose import _simulate_all
+        from tendonkit.diagnose.engine import _simulate_all
+        from tendonkit.diagnose.stats import atom_test
         from tendonkit.metrics import fit
         from tendonkit.simulate import _aligned
-        from tendonkit.stats import atom_test
 
         params = ext.params
         names = ctx.baseline.output_names
@@ -409,7 +409,7 @@ class Saturation:
         return {
             "statistic": "validation output samples at the clip level while the baseline's "
             "simulation and the inputs move, Poisson tail against the most a peak or a held level would put "
-            "there (tendonkit.stats.atom_test); every clipped end must be seen",
+            "there (tendonkit.diagnose.stats.atom_test); every clipped end must be seen",
             "summary": f"{params['signal']}: {said}",
             "signal": params["signal"],
             "tests": tests,

@@ -7,7 +7,7 @@
 - ``gravity``: a constant (operating-point load) and ``cos(y[k-1])`` for angle outputs.
 
 Each effect proposes a few structures and scales, fits each on the training data with
-:func:`tendonkit.augment.extend_with_terms` (which works for every representation) and keeps
+:func:`tendonkit.diagnose.extend.extend_with_terms` (which works for every representation) and keeps
 the one with the best training simulation fit (:meth:`tendonkit.diagnose.Context.select`).
 """
 
@@ -18,11 +18,11 @@ from typing import Any
 
 import numpy as np
 
-from tendonkit.augment import extend_with_terms, refit_with_input_blocks
 from tendonkit.dataset import Dataset
 from tendonkit.diagnose import Context, Extension
+from tendonkit.diagnose.extend import extend_with_terms, refit_with_input_blocks
+from tendonkit.diagnose.residuals import ResidualAnalysis
 from tendonkit.hookspecs import hookimpl
-from tendonkit.residuals import ResidualAnalysis
 from tendonkit.schema import Block, Model
 from tendonkit.terms import Factor, Term
 

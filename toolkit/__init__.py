@@ -7,6 +7,7 @@ are checked in co-simulation against a physics plant FMU.
 
 from __future__ import annotations
 
+from tendonkit import _compat
 from tendonkit.dataset import Dataset, Experiment
 from tendonkit.errors import (
     DataError,
@@ -26,7 +27,9 @@ from tendonkit.schema import ARX, Block, Model, Provenance, Signal, SparseMap, S
 from tendonkit.simulate import simulate, simulate_dataset
 from tendonkit.terms import Factor, Term
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
+
+_compat.install()  # the old module paths of 0.1, for one release
 
 __all__ = [
     "ARX",

@@ -75,7 +75,7 @@ def compare(
             "mean_fit": float(np.mean(list(fits.values()))),
         }
         if joints or ee or plot_dir:
-            from tendonkit.reconstruct import joint_report
+            from tendonkit.robot.reconstruct import joint_report
 
             row.update(
                 joint_report(
@@ -126,7 +126,7 @@ def plot_compare(
     initial: str = "estimate",
 ) -> list[str]:
     """Measured vs simulated outputs of every model (one PNG), as :func:`compare` scores them."""
-    from tendonkit.figures_model import plot_outputs
+    from tendonkit.figures import plot_outputs
 
     sims: dict[str, np.ndarray] = {}
     model0 = models[0]

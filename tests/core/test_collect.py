@@ -15,12 +15,12 @@ import numpy as np
 import pytest
 
 from tendonkit.cli import main
-from tendonkit.collect import COLUMNS, PlantSession, collect
 from tendonkit.dataset import Dataset
 from tendonkit.errors import FMUError, OptionError
 from tendonkit.fmu.build import build_plant_fmu, cached_plant_fmu, plant_parameters
 from tendonkit.fmu.plant import Plant, PlantConfig
-from tendonkit.protocol import circles, pseudo_random
+from tendonkit.robot.collect import COLUMNS, PlantSession, collect
+from tendonkit.robot.protocol import circles, pseudo_random
 
 pytest.importorskip("fmpy")
 

@@ -14,10 +14,15 @@ import sys
 import numpy as np
 import pytest
 
-from tendonkit._mpc_examples import tendon_sparse_map, two_mode_model
-from tendonkit._mpc_nonlinear import SparseMapDynamics
 from tendonkit.cli import main
-from tendonkit.cosim import (
+from tendonkit.errors import FMUError, OptionError
+from tendonkit.fmu.build import build_plant_fmu
+from tendonkit.fmu.plant import Plant, PlantConfig
+from tendonkit.mpc import InputTarget, LinearMPC, NonlinearMPC, StepResult
+from tendonkit.mpc.examples import tendon_sparse_map, two_mode_model
+from tendonkit.mpc.nonlinear import SparseMapDynamics
+from tendonkit.realize import to_state_space
+from tendonkit.robot.cosim import (
     DEFAULTS,
     PAIR_SUMS,
     STEP,
@@ -30,12 +35,7 @@ from tendonkit.cosim import (
     open_loop,
     run,
 )
-from tendonkit.errors import FMUError, OptionError
-from tendonkit.fmu.build import build_plant_fmu
-from tendonkit.fmu.plant import Plant, PlantConfig
-from tendonkit.kinematics import commanded_tensions, expand_joints, forward_kinematics
-from tendonkit.mpc import InputTarget, LinearMPC, NonlinearMPC, StepResult
-from tendonkit.realize import to_state_space
+from tendonkit.robot.kinematics import commanded_tensions, expand_joints, forward_kinematics
 from tendonkit.schema import ARX, Block, Signal
 from tendonkit.terms import Factor, Term
 from tendonkit.testsystems import random_state_space

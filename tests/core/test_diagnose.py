@@ -11,8 +11,8 @@ from scipy.signal import lfilter
 
 from tendonkit.dataset import Dataset, Experiment
 from tendonkit.diagnose import diagnose
+from tendonkit.diagnose.stats import atom_test, autocorrelation_time, holm, loss_test
 from tendonkit.errors import OptionError, PluginError
-from tendonkit.stats import atom_test, autocorrelation_time, holm, loss_test
 from tendonkit.testsystems import lightly_damped_oscillator
 
 
@@ -292,7 +292,7 @@ class QuadraticDamping:
     description = "Quadratic (drag) damping: |Δy|·Δy of every output."
 
     def extend(self, ctx):
-        from tendonkit.augment import extend_with_terms
+        from tendonkit.diagnose.extend import extend_with_terms
         from tendonkit.terms import Factor, Term
 
         cands = []

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from tendonkit.errors import DataError, OptionError
-from tendonkit.kinematics import (
+from tendonkit.robot import PAPER_RATIOS, RobotParameters
+from tendonkit.robot.kinematics import (
     commanded_tensions,
     expand_joints,
     forward_kinematics,
@@ -20,7 +21,6 @@ from tendonkit.kinematics import (
     scalar_forward_kinematics,
     static_tension_difference,
 )
-from tendonkit.robot import PAPER_RATIOS, RobotParameters
 
 ROBOT = RobotParameters()
 

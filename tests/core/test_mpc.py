@@ -1,6 +1,6 @@
 """MPC controllers: tracking, offset-free, constraints, DPP, design vs fast path, fallback.
 
-The plants are small known systems shaped like the robot (tendonkit._mpc_examples): linear
+The plants are small known systems shaped like the robot (tendonkit.mpc.examples): linear
 pan/tilt modes at 3.6 and 4.7 Hz driven by tension differences (0.006 rad/N, operating point
 105 N), and a two-state sparse map with ``u·cos(q)`` and ``u·sin(q)`` terms.  Weights: the
 tests use R = 1e-4 or 1e-3 (N⁻²) so that the loops settle within a second; the default R = 0.1
@@ -14,10 +14,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from tendonkit._mpc_examples import tendon_sparse_map, two_mode_model
-from tendonkit._mpc_nonlinear import SparseMapDynamics
 from tendonkit.errors import DataError, OptionError
 from tendonkit.mpc import LinearMPC, NoiseCovariance, NonlinearMPC, StepResult
+from tendonkit.mpc.examples import tendon_sparse_map, two_mode_model
+from tendonkit.mpc.nonlinear import SparseMapDynamics
 from tendonkit.realize import to_state_space
 from tendonkit.schema import ARX, Block, Model, Signal, SparseMap, StateSpace
 from tendonkit.simulate import simulate
@@ -220,7 +220,7 @@ def test_arx_model_is_realized_reduced_and_controls_like_its_state_space(robot):
 
 
 def test_balanced_truncation_still_tracks_offset_free():
-    from tendonkit._mpc_examples import random_tendon_model
+    from tendonkit.mpc.examples import random_tendon_model
 
     truth = random_tendon_model(8, seed=0)
     ctrl = LinearMPC(truth, R=1e-3, reduce=4)

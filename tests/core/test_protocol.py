@@ -7,9 +7,9 @@ import pytest
 import scipy.signal
 
 from tendonkit.errors import OptionError
-from tendonkit.kinematics import commanded_tensions, inverse_kinematics
-from tendonkit.protocol import PHASES, circles, kinematic_controller, petal, pseudo_random
 from tendonkit.robot import RobotParameters
+from tendonkit.robot.kinematics import commanded_tensions, inverse_kinematics
+from tendonkit.robot.protocol import PHASES, circles, kinematic_controller, petal, pseudo_random
 
 ROBOT = RobotParameters()
 

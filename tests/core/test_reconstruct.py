@@ -10,9 +10,9 @@ import pytest
 from tendonkit.compare import compare
 from tendonkit.dataset import Dataset, Experiment
 from tendonkit.errors import DataError
-from tendonkit.kinematics import forward_kinematics
-from tendonkit.protocol import circles, pseudo_random
-from tendonkit.reconstruct import Ratios, ee_error_cm, estimate_ratios, reconstruct
+from tendonkit.robot.kinematics import forward_kinematics
+from tendonkit.robot.protocol import circles, pseudo_random
+from tendonkit.robot.reconstruct import Ratios, ee_error_cm, estimate_ratios, reconstruct
 
 fmu_plant = pytest.importorskip("tendonkit.fmu.plant")
 

@@ -24,8 +24,8 @@ from tendonkit.cli import main
 from tendonkit.errors import OptionError
 from tendonkit.fmu.build import build_model_fmu
 from tendonkit.fmu.plant import Plant
-from tendonkit.kinematics import expand_joints, forward_kinematics
-from tendonkit.protocol import pseudo_random
+from tendonkit.robot.kinematics import expand_joints, forward_kinematics
+from tendonkit.robot.protocol import pseudo_random
 from tendonkit.schema import ARX, Block, Model, Signal, SparseMap, StateSpace
 from tendonkit.simulate import simulate
 from tendonkit.terms import Factor, Term

@@ -25,8 +25,8 @@ from tendonkit.fmu.plant import (
     linearise,
     tendon_torque,
 )
-from tendonkit.protocol import circles, pseudo_random
 from tendonkit.robot import RobotParameters
+from tendonkit.robot.protocol import circles, pseudo_random
 
 ROBOT = RobotParameters()
 H = 0.03

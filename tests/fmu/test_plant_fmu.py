@@ -21,7 +21,7 @@ import pytest
 from tendonkit.fmu.build import build_plant_fmu
 from tendonkit.fmu.plant import Plant, PlantConfig
 from tendonkit.fmu.plant_fmu import INPUTS, OUTPUTS, STEP, read_parameters
-from tendonkit.protocol import pseudo_random
+from tendonkit.robot.protocol import pseudo_random
 
 fmpy = pytest.importorskip("fmpy")
 
@@ -60,7 +60,7 @@ def expected(config: PlantConfig, u: np.ndarray) -> np.ndarray:
 
 
 class Slave:
-    """A bare fmpy instance with a log collector (independent of tendonkit.collect)."""
+    """A bare fmpy instance with a log collector (independent of tendonkit.robot.collect)."""
 
     def __init__(self, path, start: dict | None = None) -> None:
         from fmpy import extract, read_model_description

@@ -139,7 +139,7 @@ def plant_data(
     """
     from tendonkit.fmu._config import PlantConfig
     from tendonkit.fmu.plant import Plant
-    from tendonkit.protocol import circles, pseudo_random
+    from tendonkit.robot.protocol import circles, pseudo_random
 
     cfg = PlantConfig(noise_on=True, seed=seed, **params)
     inputs = ("u1", "u2", "u3", "u4") if commanded else ("T1", "T2", "T3", "T4")

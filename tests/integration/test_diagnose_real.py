@@ -19,10 +19,10 @@ import numpy as np
 import pytest
 from conftest import REAL_DATA
 
-from tendonkit.cli import render_diagnosis
+from tendonkit.cli.app import render_diagnosis
 from tendonkit.dataset import Dataset, Experiment
 from tendonkit.diagnose import Diagnosis, diagnose
-from tendonkit.diagnose_report import write_report
+from tendonkit.diagnose.report import write_report
 from tendonkit.simulate import simulate
 
 pytestmark = [pytest.mark.slow, pytest.mark.usefixtures("real_data")]

@@ -26,7 +26,7 @@ import pytest
 import tendonkit as tk
 from tendonkit.fmu.build import build_model_fmu
 from tendonkit.fmu.plant import Plant
-from tendonkit.protocol import pseudo_random
+from tendonkit.robot.protocol import pseudo_random
 
 pytestmark = pytest.mark.slow
 

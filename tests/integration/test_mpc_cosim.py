@@ -4,12 +4,12 @@ For each plant — the nominal one and the "paper-like" preset (friction + force
 delay + horizontal mounting + 2 Hz camera, plant spec §10), both with sensor noise (effect N,
 σ_q = 5 mrad), because a feedback controller must live with it — the module collects training
 data through the plant FMU with the paper's protocol (circles of 2–12 cm and 120 s of
-pseudo-random motion, commanded forces u1..u4 -> measured q1, q2, :func:`tendonkit.collect.collect`),
+pseudo-random motion, commanded forces u1..u4 -> measured q1, q2, :func:`tendonkit.robot.collect.collect`),
 identifies an N4SID model (order 8, horizon 30) and a SINDYc model once (module-scoped fixture), and tracks
 the petal ``r = A cos(3θ)``, A = 9 cm (spec §12) with
 
 - the linear MPC on the N4SID model and the nonlinear MPC on the SINDYc model, with the tuned
-  settings of :data:`tendonkit.cosim.DEFAULTS`, and
+  settings of :data:`tendonkit.robot.cosim.DEFAULTS`, and
 - the open-loop kinematic controller of the data-collection protocol, on the same plant,
   reference and noise.
 
@@ -42,7 +42,7 @@ new seed from failing by chance while still demanding a clear win.  The margins 
 controller and plant because the spread is: 30 points for the linear MPC's q1 on the
 paper-like plant, whose N4SID models from commanded forces under friction and force lag
 differ most, under 23 points elsewhere.  This module uses seed 17, used neither for tuning
-(:data:`tendonkit.cosim.DEFAULTS`) nor for the table.  The nominal margins cannot be met by
+(:data:`tendonkit.robot.cosim.DEFAULTS`) nor for the table.  The nominal margins cannot be met by
 removing a static offset (the open loop has none there): they need the model's dynamics.  On
 the paper-like plant q2 gains most because the offset-free MPC removes the 69 mrad gravity sag
 the open loop leaves.
@@ -69,8 +69,12 @@ import numpy as np
 import pytest
 
 import tendonkit as tk
-from tendonkit.collect import collect
-from tendonkit.cosim import (
+from tendonkit.dataset import Dataset
+from tendonkit.fmu.build import build_plant_fmu
+from tendonkit.fmu.plant import PlantConfig
+from tendonkit.mpc import LinearMPC
+from tendonkit.robot.collect import collect
+from tendonkit.robot.cosim import (
     ControllerSettings,
     CosimResult,
     make_controller,
@@ -78,11 +82,7 @@ from tendonkit.cosim import (
     open_loop,
     run,
 )
-from tendonkit.dataset import Dataset
-from tendonkit.fmu.build import build_plant_fmu
-from tendonkit.fmu.plant import PlantConfig
-from tendonkit.mpc import LinearMPC
-from tendonkit.protocol import circles, pseudo_random
+from tendonkit.robot.protocol import circles, pseudo_random
 
 pytest.importorskip("fmpy")
 pytest.importorskip("pysindy")

@@ -175,7 +175,7 @@ def test_output_error_keeps_a_clipped_state_clipped():
     that lag's A) follow A during the refinement, so the clip stays a clip."""
     import dataclasses
 
-    from tendonkit.refine import refine_output_error
+    from tendonkit.plugins._output_error import refine_output_error
     from tendonkit.terms import Factor, Term
 
     rng = np.random.default_rng(2)
@@ -209,7 +209,7 @@ def test_output_error_options_and_models_are_checked():
     ds = tk.Dataset.from_arrays(np.arange(50.0), np.arange(50.0), 1.0)
     with pytest.raises(OptionError, match="criterion must be 'equation' or 'simulation'"):
         tk.identify(ds, "arx", criterion="oe")
-    from tendonkit.refine import refine_output_error
+    from tendonkit.plugins._output_error import refine_output_error
 
     rng = np.random.default_rng(0)
     u = rng.normal(size=300)

@@ -13,8 +13,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from tendonkit._mpc_qp import SOLVERS, QPResult, QPSpec, TrackingQP
 from tendonkit.errors import DataError, OptionError, raise_if
+from tendonkit.mpc.qp import SOLVERS, QPResult, QPSpec, TrackingQP
 from tendonkit.schema import Model
 
 FloatArray = NDArray[np.float64]

@@ -8,7 +8,7 @@ The procedure, for any registered identifier as the baseline and any registered 
    baseline grossly worse than that (an equation-error fit biased by output noise) is
    replaced by N4SID, because extensions would otherwise "gain" by changing the bias.
 2. **Residuals.** Analyse where the validation error concentrates and how the one-step
-   residuals correlate with the inputs (:mod:`tendonkit.residuals`); effects turn this into
+   residuals correlate with the inputs (:mod:`tendonkit.diagnose.residuals`); effects turn this into
    their evidence.
 3. **Candidates.** Every effect proposes extensions of the baseline with its own parameters
    (a delay, a dead-zone threshold, a friction term, ...).  Each candidate is fitted on the
@@ -27,7 +27,7 @@ The procedure, for any registered identifier as the baseline and any registered 
    never names a cause: without structure the batch log-ratios scatter around
    ``log(1 - δ) < 0``.  An effect may also test its signature directly on the validation
    data (``direct_test``: a clipped output piles up at its level,
-   :func:`tendonkit.stats.atom_test`); the finding's p-value is then the Bonferroni
+   :func:`tendonkit.diagnose.stats.atom_test`); the finding's p-value is then the Bonferroni
    combination ``2·min(p_loss, p_direct)`` of the two routes.
 6. **Naming.** The significant finding with the largest gain names the cause; with none the
    cause is ``none``.  Parsimony breaks ties: a significant finding with fewer added
@@ -50,8 +50,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from tendonkit.dataset import Dataset
-from tendonkit.errors import OptionError
-from tendonkit.findings import (
+from tendonkit.diagnose.findings import (
     DEFAULT_EXPERIMENT,
     DISCRIMINATING,
     Diagnosis,
@@ -59,11 +58,12 @@ from tendonkit.findings import (
     _ambiguity,
     _mean,
 )
+from tendonkit.diagnose.residuals import ResidualAnalysis, analyse
+from tendonkit.diagnose.stats import holm, loss_test
+from tendonkit.errors import OptionError
 from tendonkit.metrics import fit
-from tendonkit.residuals import ResidualAnalysis, analyse
 from tendonkit.schema import Model
 from tendonkit.simulate import _aligned, simulate
-from tendonkit.stats import holm, loss_test
 
 FloatArray = NDArray[np.float64]
 

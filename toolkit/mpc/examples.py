@@ -61,7 +61,7 @@ def two_mode_model(
         inputs=TENDONS,
         outputs=(Signal("q1", "rad"), Signal("q2", "rad")),
         representation=StateSpace(A=A, B=B, C=C, D=np.zeros((2, 4))),
-        provenance=Provenance(identifier="truth", notes="tendonkit._mpc_examples.two_mode_model"),
+        provenance=Provenance(identifier="truth", notes="tendonkit.mpc.examples.two_mode_model"),
     )
 
 
@@ -116,9 +116,7 @@ def tendon_sparse_map(
         representation=SparseMap(
             terms=tuple(terms), coefficients=np.array(coef), output_states=(0, 1)
         ),
-        provenance=Provenance(
-            identifier="truth", notes="tendonkit._mpc_examples.tendon_sparse_map"
-        ),
+        provenance=Provenance(identifier="truth", notes="tendonkit.mpc.examples.tendon_sparse_map"),
     )
 
 
@@ -152,6 +150,6 @@ def random_tendon_model(n_states: int = 8, *, seed: int = 0, gain: float = 0.006
         outputs=(Signal("q1", "rad"), Signal("q2", "rad")),
         representation=StateSpace(A=base.A, B=B, C=base.C, D=np.zeros((2, 4))),
         provenance=Provenance(
-            identifier="truth", notes="tendonkit._mpc_examples.random_tendon_model"
+            identifier="truth", notes="tendonkit.mpc.examples.random_tendon_model"
         ),
     )

@@ -1,8 +1,8 @@
 """The ``tendonkit mpc`` subcommand: track a reference on the plant FMU with an MPC.
 
-:func:`add_commands` is called by :func:`tendonkit.cli.build_parser`.  The model decides the
+:func:`add_commands` is called by :func:`tendonkit.cli.app.build_parser`.  The model decides the
 controller (linear MPC for ``state_space``/``arx`` models, nonlinear MPC for ``sparse_map``
-models, :func:`tendonkit.cosim.make_controller`); the plant is an FMU given with ``--plant``
+models, :func:`tendonkit.robot.cosim.make_controller`); the plant is an FMU given with ``--plant``
 or the nominal one, built once and cached.  fmpy, cvxpy and matplotlib are imported inside the
 command, so ``tendonkit --help`` stays instant.  Every user error is reported at once (exit
 status 2).
@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from tendonkit.cli import check_output_path, raise_problems, write_json
+from tendonkit.cli.app import check_output_path, raise_problems, write_json
 from tendonkit.errors import OptionError, SchemaError
 
 __all__ = ["add_commands", "cmd_mpc"]
@@ -31,7 +31,7 @@ __all__ = ["add_commands", "cmd_mpc"]
 
 def add_commands(sub: Any) -> None:
     """Add the ``mpc`` subcommand to the ``tendonkit`` subparsers."""
-    from tendonkit.cosim import REFERENCES
+    from tendonkit.robot.cosim import REFERENCES
 
     p = sub.add_parser(
         "mpc",
@@ -103,7 +103,7 @@ def _plant(args: argparse.Namespace, problems: list[str]) -> tuple[Any, dict[str
             except OptionError as exc:
                 problems.extend(exc.problems or [str(exc)])
             return None, {}, None
-        from tendonkit.collect import fmu_parameters
+        from tendonkit.robot.collect import fmu_parameters
 
         try:
             base = fmu_parameters(args.plant)
@@ -126,8 +126,8 @@ def _plant(args: argparse.Namespace, problems: list[str]) -> tuple[Any, dict[str
 
 def cmd_mpc(args: argparse.Namespace) -> int:
     """Co-simulate the plant with the MPC for a model and report the tracking."""
-    from tendonkit.cli import _load_model
-    from tendonkit.cosim import ControllerSettings, controller_kind, make_reference
+    from tendonkit.cli.app import _load_model
+    from tendonkit.robot.cosim import ControllerSettings, controller_kind, make_reference
 
     problems: list[str] = []
     model = _load_model(args.model, problems)
@@ -179,8 +179,8 @@ def _run(
 ) -> int:
     import sys
 
-    from tendonkit.cosim import DEFAULTS, make_controller, open_loop, plot_tracking, run
     from tendonkit.fmu.build import cached_plant_fmu
+    from tendonkit.robot.cosim import DEFAULTS, make_controller, open_loop, plot_tracking, run
 
     fmu = plant if plant is not None else cached_plant_fmu(params)
     progress = not args.no_progress and sys.stderr.isatty()

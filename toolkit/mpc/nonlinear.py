@@ -18,9 +18,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from tendonkit._mpc_base import _MPC, InputTarget, NoiseCovariance, _LinearizationError
-from tendonkit._mpc_qp import QPResult, TrackingQP
 from tendonkit.errors import OptionError
+from tendonkit.mpc.base import _MPC, InputTarget, NoiseCovariance, _LinearizationError
+from tendonkit.mpc.qp import QPResult, TrackingQP
 from tendonkit.schema import Model, SparseMap
 from tendonkit.terms import CompiledTerms
 
@@ -255,7 +255,7 @@ class NonlinearMPC(_MPC):
 
     Examples
     --------
-    >>> from tendonkit._mpc_examples import tendon_sparse_map
+    >>> from tendonkit.mpc.examples import tendon_sparse_map
     >>> mpc = NonlinearMPC(tendon_sparse_map(), horizon=10)
     >>> mpc.problem.is_dpp()
     True

@@ -54,7 +54,7 @@ class _Stages:
 
 
 def _protocols(quick: bool, seed: int) -> dict[str, Any]:
-    from tendonkit import protocol
+    from tendonkit.robot import protocol
 
     radii = [0.02, 0.05, 0.08, 0.12] if quick else None
     return {
@@ -66,9 +66,9 @@ def _protocols(quick: bool, seed: int) -> dict[str, Any]:
 
 
 def _collect(out: Path, quick: bool, seed: int, progress: bool) -> dict[str, Any]:
-    from tendonkit.collect import collect
     from tendonkit.fmu._config import PlantConfig
     from tendonkit.fmu.build import build_plant_fmu
+    from tendonkit.robot.collect import collect
 
     config = PlantConfig.preset("paper_like").replace(noise_on=True, seed=seed)
     plant = build_plant_fmu(out / "plant_paper_like.fmu", config)
@@ -129,7 +129,7 @@ def _render_table(res: dict[str, Any]) -> str:
 
 def _reconstruction(models: dict[str, Any], data: dict[str, Any], out: Path) -> dict[str, Any]:
     from tendonkit.compare import score
-    from tendonkit.reconstruct import Ratios, estimate_ratios, joint_report
+    from tendonkit.robot.reconstruct import Ratios, estimate_ratios, joint_report
 
     train, valid = data["train"], data["valid"]
     q_train = np.column_stack([train.signal(f"q{i}") for i in range(1, 7)])
@@ -164,7 +164,7 @@ def _diagnose(
     models: dict[str, Any], table: dict[str, Any], data: dict[str, Any], out: Path, quick: bool
 ) -> dict[str, Any]:
     from tendonkit.diagnose import diagnose
-    from tendonkit.diagnose_report import write_report
+    from tendonkit.diagnose.report import write_report
 
     best = max(table["models"], key=lambda r: r["mean_fit"])["model"]
     model = models[best]
@@ -312,7 +312,7 @@ def run_demo(
 
 
 def _fig2(data: dict[str, Any], out: Path) -> list[Path]:
-    from tendonkit.figures import fig2
+    from tendonkit.robot.figures import fig2
 
     rec = data["recordings"]["train_circles"]
     return list(
@@ -323,11 +323,11 @@ def _fig2(data: dict[str, Any], out: Path) -> list[Path]:
 
 
 def _mpc(models: dict[str, Any], data: dict[str, Any], out: Path, quick: bool) -> dict[str, Any]:
-    from tendonkit.cosim import make_controller, make_reference, open_loop, plot_tracking, run
+    from tendonkit.robot.cosim import make_controller, make_reference, open_loop, plot_tracking, run
 
     ref = make_reference("petal", duration=15.0 if quick else 40.0)
     plant = data["plant"]
-    # The tuned defaults of the co-simulation (tendonkit.controllers.DEFAULTS): Q = 1e4, R = 0.3,
+    # The tuned defaults of the co-simulation (tendonkit.robot.controllers.DEFAULTS): Q = 1e4, R = 0.3,
     # horizon 20, and each antagonistic pair's sum held at 2 x 105 N.
     results = {
         "open-loop kinematic": open_loop(plant, ref),

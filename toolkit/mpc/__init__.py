@@ -1,6 +1,6 @@
 """Model predictive control of tendonkit models, designed in cvxpy.
 
-Two controllers share one interface and one tracking problem (:mod:`tendonkit._mpc_qp`):
+Two controllers share one interface and one tracking problem (:mod:`tendonkit.mpc.qp`):
 
 - :class:`LinearMPC` for every linear model (``state_space``, ``arx``, input delays): the
   exact realisation, reduced when it is not minimal, a steady-state Kalman predictor and
@@ -35,8 +35,8 @@ Examples
 
 from __future__ import annotations
 
-from tendonkit._mpc_base import InputTarget, NoiseCovariance, StepResult
-from tendonkit._mpc_linear import LinearMPC
-from tendonkit._mpc_nonlinear import NonlinearMPC
+from tendonkit.mpc.base import InputTarget, NoiseCovariance, StepResult
+from tendonkit.mpc.linear import LinearMPC
+from tendonkit.mpc.nonlinear import NonlinearMPC
 
 __all__ = ["InputTarget", "LinearMPC", "NoiseCovariance", "NonlinearMPC", "StepResult"]

@@ -13,9 +13,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from tendonkit.residuals import ResidualAnalysis
+from tendonkit.diagnose.residuals import ResidualAnalysis
+from tendonkit.diagnose.stats import loss_test
 from tendonkit.schema import Model
-from tendonkit.stats import loss_test
 
 FloatArray = NDArray[np.float64]
 

@@ -21,13 +21,13 @@ import numpy as np
 import scipy.signal
 
 from tendonkit.errors import OptionError, raise_if
-from tendonkit.kinematics import (
+from tendonkit.robot import PAPER_RATIOS, RobotParameters
+from tendonkit.robot.kinematics import (
     commanded_tensions,
     expand_joints,
     forward_kinematics,
     inverse_kinematics,
 )
-from tendonkit.robot import PAPER_RATIOS, RobotParameters
 
 __all__ = [
     "PHASES",

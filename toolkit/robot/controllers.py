@@ -1,6 +1,6 @@
 """The robot's MPC controllers as the co-simulation runs them: settings, tuned defaults, factory.
 
-Kept apart from the co-simulation master (:mod:`tendonkit.cosim`, which re-exports these names)
+Kept apart from the co-simulation master (:mod:`tendonkit.robot.cosim`, which re-exports these names)
 so that each module stays one concept.
 """
 
@@ -96,12 +96,12 @@ def controller_kind(model: Any) -> str:
 
     Examples
     --------
-    >>> from tendonkit._mpc_examples import tendon_sparse_map, two_mode_model
+    >>> from tendonkit.mpc.examples import tendon_sparse_map, two_mode_model
     >>> controller_kind(two_mode_model()), controller_kind(tendon_sparse_map())
     ('linear', 'nonlinear')
     """
-    from tendonkit._mpc_linear import linear_problems
-    from tendonkit._mpc_nonlinear import nonlinear_problems
+    from tendonkit.mpc.linear import linear_problems
+    from tendonkit.mpc.nonlinear import nonlinear_problems
 
     problems = []
     if len(model.inputs) != 4:
@@ -143,7 +143,7 @@ def make_controller(
 
     Examples
     --------
-    >>> from tendonkit._mpc_examples import two_mode_model
+    >>> from tendonkit.mpc.examples import two_mode_model
     >>> ctrl = make_controller(two_mode_model(), ControllerSettings(horizon=10))
     >>> type(ctrl).__name__, ctrl.horizon
     ('LinearMPC', 10)

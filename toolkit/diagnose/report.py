@@ -8,8 +8,9 @@ from typing import Any
 import numpy as np
 
 from tendonkit.dataset import Dataset
-from tendonkit.diagnose import Diagnosis, _simulate_all
-from tendonkit.findings import evidence_notes
+from tendonkit.diagnose import Diagnosis
+from tendonkit.diagnose.engine import _simulate_all
+from tendonkit.diagnose.findings import evidence_notes
 from tendonkit.report import Report
 
 
@@ -36,7 +37,7 @@ def write_report(
     diagnosis: Diagnosis, valid: Dataset, folder: str | Path, model_path: str | None = None
 ) -> Path:
     """Write ``index.html`` with figures into ``folder`` and return its path."""
-    from tendonkit.figures_model import (
+    from tendonkit.figures import (
         plot_correlation,
         plot_outputs,
         plot_ranking,

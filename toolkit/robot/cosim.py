@@ -4,7 +4,7 @@ Every 30 ms (the plant FMU's fixed communication step) the master reads the plan
 outputs, asks the controller for the tendon forces and writes them to ``T_cmd1..T_cmd4``
 before the next ``doStep``.  The plant has no direct feedthrough from force to angle, so the
 outputs read at ``t_k`` are those of the state at ``t_k`` and the loop is causal.  The plant is
-driven through :class:`tendonkit.collect.PlantSession` (fmpy's FMI 2.0 C API with preallocated
+driven through :class:`tendonkit.robot.collect.PlantSession` (fmpy's FMI 2.0 C API with preallocated
 buffers).
 
 References (end-effector curves converted to q1, q2 references with the constant-ratio
@@ -36,7 +36,8 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from tendonkit.controllers import (
+from tendonkit.errors import FMUError, OptionError, raise_if
+from tendonkit.robot.controllers import (
     DEFAULTS,
     PAIR_SUMS,
     PRETENSION,
@@ -44,8 +45,7 @@ from tendonkit.controllers import (
     controller_kind,
     make_controller,
 )
-from tendonkit.errors import FMUError, OptionError, raise_if
-from tendonkit.figures import plot_tracking
+from tendonkit.robot.figures import plot_tracking
 
 __all__ = [
     "DEFAULTS",
@@ -167,8 +167,8 @@ def make_reference(
     >>> make_reference("step", duration=3.0).q12.shape
     (100, 2)
     """
-    from tendonkit import protocol
-    from tendonkit.kinematics import commanded_tensions, expand_joints, forward_kinematics
+    from tendonkit.robot import protocol
+    from tendonkit.robot.kinematics import commanded_tensions, expand_joints, forward_kinematics
 
     problems = []
     if kind not in REFERENCES:
@@ -333,8 +333,8 @@ class PlantFMU:
     """
 
     def __init__(self, path: str | Path, parameters: Mapping[str, Any] | None = None) -> None:
-        from tendonkit.collect import OUTPUTS as ALL
-        from tendonkit.collect import PlantSession
+        from tendonkit.robot.collect import OUTPUTS as ALL
+        from tendonkit.robot.collect import PlantSession
 
         path = Path(path)
         if not path.is_file():

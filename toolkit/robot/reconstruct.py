@@ -3,7 +3,7 @@
 The paper models only q1 (pan) and q2 (tilt) and recovers the other joints with constant
 ratios — q3 = r3 q1, q5 = r5 q1 in the pan plane, q4 = r4 q2, q6 = r6 q2 in the tilt plane —
 then the end effector with forward kinematics (one implementation, shared with the plant:
-:mod:`tendonkit.kinematics`).  The ratios default to the paper's values and can be estimated
+:mod:`tendonkit.robot.kinematics`).  The ratios default to the paper's values and can be estimated
 from any data set that has all six joints, two ways:
 
 - ``least_squares``: per plane, the slope through the origin, ``r = Σ q1 qi / Σ q1²``;
@@ -24,9 +24,9 @@ from numpy.typing import NDArray
 
 from tendonkit.dataset import Dataset
 from tendonkit.errors import DataError
-from tendonkit.kinematics import expand_joints, forward_kinematics
 from tendonkit.metrics import fit
 from tendonkit.robot import PAPER_RATIOS
+from tendonkit.robot.kinematics import expand_joints, forward_kinematics
 
 FloatArray = NDArray[np.float64]
 
@@ -187,7 +187,7 @@ def joint_report(
             )
         out["ee_error_cm"] = ee_error_cm(ee_meas, ee_model)
     if plot_dir is not None:
-        from tendonkit.figures_model import plot_ee_path, plot_joints
+        from tendonkit.figures import plot_ee_path, plot_joints
 
         # experiments back to back: time runs on, and path lines break between experiments
         t = data.dt * np.arange(sum(e.n_samples for e in data.experiments))

@@ -358,7 +358,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     if args.json:
         write_json(args.json, summary)
     if args.report:
-        from tendonkit.diagnose_report import write_report
+        from tendonkit.diagnose.report import write_report
 
         index = write_report(result, valid, args.report, model_path)
         summary["report"] = str(index)
@@ -368,7 +368,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 
 def render_diagnosis(summary: dict[str, Any]) -> str:
     """Plain-text summary of a diagnosis."""
-    from tendonkit.findings import evidence_notes
+    from tendonkit.diagnose.findings import evidence_notes
 
     lines = [
         f"cause: {summary['cause']}",
@@ -443,7 +443,7 @@ def cmd_plugins(args: argparse.Namespace) -> int:
 
 def cmd_demo(args: argparse.Namespace) -> int:
     """Run the main job and write its report."""
-    from tendonkit.demo import run_demo
+    from tendonkit.robot.study import run_demo
 
     out = Path(args.out)
     problems: list[str] = []
@@ -458,8 +458,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 _EXTRA_COMMANDS: list[tuple[str, str]] = [
     # (module, function) pairs contributing subcommands that live in their own modules.
-    ("tendonkit.cli_robot", "add_commands"),
-    ("tendonkit.cli_mpc", "add_commands"),
+    ("tendonkit.cli.robot", "add_commands"),
+    ("tendonkit.cli.mpc", "add_commands"),
 ]
 
 

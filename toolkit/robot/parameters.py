@@ -274,7 +274,7 @@ class RobotParameters:
     @cached_property
     def M0(self) -> np.ndarray:
         """Joint-space inertia at q = 0, kg m², shape (6, 6) (block-diagonal pan/tilt)."""
-        from tendonkit.kinematics import mass_matrix  # kinematics imports this module
+        from tendonkit.robot.kinematics import mass_matrix  # kinematics imports this module
 
         return _readonly(mass_matrix(np.zeros(N_JOINTS), self))
 

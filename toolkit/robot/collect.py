@@ -1,6 +1,6 @@
 """Data collection: drive a plant FMU through fmpy with one of the paper's protocols.
 
-:func:`collect` plays a :class:`~tendonkit.protocol.Protocol` (the open-loop kinematic
+:func:`collect` plays a :class:`~tendonkit.robot.protocol.Protocol` (the open-loop kinematic
 controller's tendon commands) into a plant FMU, one 30 ms frame per command, and logs every
 frame like the real experiment.  :class:`PlantSession` is the thin fmpy driver underneath; a
 co-simulation master (MPC) can use it to step the plant one frame at a time.
@@ -16,7 +16,7 @@ plant's force-loop effect is on (``forcelag_on``), the tension at ``t_k`` — th
 
 Examples
 --------
->>> from tendonkit.protocol import circles
+>>> from tendonkit.robot.protocol import circles
 >>> rec = collect(circles(radii=[0.02], laps=1), plant="plant.fmu")  # doctest: +SKIP
 >>> list(rec.columns)[:6]  # doctest: +SKIP
 ['t', 'u1', 'u2', 'u3', 'u4', 'T1']
@@ -37,7 +37,7 @@ from numpy.typing import NDArray
 
 from tendonkit.dataset import Dataset, write_csv
 from tendonkit.errors import FMUError, OptionError, raise_if
-from tendonkit.protocol import Protocol
+from tendonkit.robot.protocol import Protocol
 
 __all__ = [
     "COLUMNS",
@@ -397,8 +397,8 @@ def collect(
     Parameters
     ----------
     protocol : Protocol
-        Commands and references (:func:`~tendonkit.protocol.circles`,
-        :func:`~tendonkit.protocol.pseudo_random`, :func:`~tendonkit.protocol.petal`); its
+        Commands and references (:func:`~tendonkit.robot.protocol.circles`,
+        :func:`~tendonkit.robot.protocol.pseudo_random`, :func:`~tendonkit.robot.protocol.petal`); its
         sample time must equal the FMU's step.
     plant : str or Path
         The plant FMU (``tendonkit plant build``, or

@@ -1,6 +1,6 @@
 """Robot-side subcommands of ``tendonkit``: ``plant build``, ``collect`` and ``export``.
 
-:func:`add_commands` is called by :func:`tendonkit.cli.build_parser`.  The FMU side
+:func:`add_commands` is called by :func:`tendonkit.cli.app.build_parser`.  The FMU side
 (:mod:`tendonkit.fmu`), fmpy, pythonfmu and matplotlib are imported inside the commands, so
 ``tendonkit --help`` stays instant.  Every user error is collected and reported at once (exit
 status 2).
@@ -13,7 +13,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from tendonkit.cli import atomic_write, check_output_path, raise_problems, write_json
+from tendonkit.cli.app import atomic_write, check_output_path, raise_problems, write_json
 from tendonkit.errors import DataError, OptionError, SchemaError
 
 PROTOCOLS = ("circles", "random", "petal")
@@ -136,7 +136,7 @@ def _radii(items: list[str] | None, problems: list[str]) -> list[float] | None:
 
 
 def _protocol(args: argparse.Namespace, problems: list[str]) -> Any:
-    from tendonkit.protocol import circles, petal, pseudo_random
+    from tendonkit.robot.protocol import circles, petal, pseudo_random
 
     radii = _radii(args.radii, problems)
     if args.radii and args.protocol != "circles":
@@ -176,9 +176,9 @@ def _truncate(prot: Any, seconds: float) -> Any:
 
 def cmd_collect(args: argparse.Namespace) -> int:
     """Drive the plant FMU with a protocol and write the frames as CSV."""
-    from tendonkit.collect import collect, fmu_parameters
     from tendonkit.dataset import write_csv
     from tendonkit.fmu.build import cached_plant_fmu, plant_parameters
+    from tendonkit.robot.collect import collect, fmu_parameters
 
     problems: list[str] = []
     inputs = [args.plant] if args.plant else []
@@ -214,7 +214,7 @@ def cmd_collect(args: argparse.Namespace) -> int:
     atomic_write(args.output, lambda p: write_csv(p, rec.columns))
     figures: list[str] = []
     if args.plot:
-        from tendonkit.figures import fig2
+        from tendonkit.robot.figures import fig2
 
         figures = [str(p) for p in fig2(rec.columns, args.plot, prot.ee_ref, title=prot.name)]
     summary = {
@@ -242,9 +242,9 @@ def cmd_collect(args: argparse.Namespace) -> int:
 # ------------------------------------------------------------------------------- export
 def _read_ratios(path: str, problems: list[str]) -> tuple[float, ...] | None:
     """The four ratios (r3, r4, r5, r6) of a ratios file in the format of
-    :class:`tendonkit.reconstruct.Ratios` (keys q3, q4, q5, q6 — what ``compare --joints``
+    :class:`tendonkit.robot.reconstruct.Ratios` (keys q3, q4, q5, q6 — what ``compare --joints``
     reports as estimates)."""
-    from tendonkit.reconstruct import Ratios
+    from tendonkit.robot.reconstruct import Ratios
 
     try:
         r = Ratios.load(path)
@@ -260,7 +260,7 @@ def _read_ratios(path: str, problems: list[str]) -> tuple[float, ...] | None:
 
 def cmd_export(args: argparse.Namespace) -> int:
     """Export a model JSON as an FMI 2.0 co-simulation FMU."""
-    from tendonkit.cli import _load_model
+    from tendonkit.cli.app import _load_model
     from tendonkit.fmu.build import build_model_fmu, model_fmu_problems
 
     problems: list[str] = []

@@ -25,9 +25,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from tendonkit._mpc_base import _MPC, InputTarget, NoiseCovariance, _formulation
-from tendonkit._mpc_qp import QPResult, TrackingQP
 from tendonkit.errors import OptionError
+from tendonkit.mpc.base import _MPC, InputTarget, NoiseCovariance, _formulation
+from tendonkit.mpc.qp import QPResult, TrackingQP
 from tendonkit.realize import to_state_space
 from tendonkit.schema import ARX, Model, StateSpace
 

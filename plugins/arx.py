@@ -158,7 +158,7 @@ class ARX:
         Y = np.vstack([e.y[lag:] for e in dataset.experiments])
         terms = bilinear_terms(dataset, nk) if self.bilinear else ()
         if terms:
-            from tendonkit.diagnose.extend import term_columns
+            from tendonkit.regression import term_columns
 
             Phi = np.hstack(
                 [
@@ -273,7 +273,7 @@ def _regressors(
 
 def _solve(Phi: FloatArray, Y: FloatArray, ridge: float) -> FloatArray:
     """Scaled, QR-reduced least squares (:func:`tendonkit.diagnose.extend.scaled_lstsq`)."""
-    from tendonkit.diagnose.extend import scaled_lstsq
+    from tendonkit.regression import scaled_lstsq
 
     return scaled_lstsq(Phi, Y, ridge)
 

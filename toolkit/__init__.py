@@ -7,9 +7,9 @@ are checked in co-simulation against a physics plant FMU.
 
 from __future__ import annotations
 
-from tendonkit import _compat
-from tendonkit.dataset import Dataset, Experiment
-from tendonkit.errors import (
+from . import _compat
+from .dataset import Dataset, Experiment
+from .errors import (
     DataError,
     FMUError,
     OptionError,
@@ -18,14 +18,14 @@ from tendonkit.errors import (
     SimulationError,
     TendonkitError,
 )
-from tendonkit.hookspecs import hookimpl
-from tendonkit.manager import effects, identifiers
-from tendonkit.metrics import fit, fit_table
-from tendonkit.mpc import InputTarget, LinearMPC, NoiseCovariance, NonlinearMPC, StepResult
-from tendonkit.predict import predict
-from tendonkit.schema import ARX, Block, Model, Provenance, Signal, SparseMap, StateSpace
-from tendonkit.simulate import simulate, simulate_dataset
-from tendonkit.terms import Factor, Term
+from .hookspecs import hookimpl
+from .manager import effects, identifiers
+from .metrics import fit, fit_table
+from .mpc import InputTarget, LinearMPC, NoiseCovariance, NonlinearMPC, StepResult
+from .predict import predict
+from .schema import ARX, Block, Model, Provenance, Signal, SparseMap, StateSpace
+from .simulate import simulate, simulate_dataset
+from .terms import Factor, Term
 
 __version__ = "0.2.0"
 

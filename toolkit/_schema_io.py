@@ -6,8 +6,8 @@ from typing import Any
 
 import numpy as np
 
-from tendonkit.errors import SchemaError
-from tendonkit.schema import (
+from .errors import SchemaError
+from .schema import (
     ARX,
     SCHEMA_VERSION,
     Block,
@@ -17,7 +17,7 @@ from tendonkit.schema import (
     SparseMap,
     StateSpace,
 )
-from tendonkit.terms import Term, term_from_dict
+from .terms import Term, term_from_dict
 
 _TOP_KEYS = {
     "schema_version",

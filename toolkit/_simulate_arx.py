@@ -13,26 +13,26 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from tendonkit.errors import DataError
-from tendonkit.schema import ARX, Model
-from tendonkit.terms import CompiledTerms, Factor, Term
+from .errors import DataError
+from .schema import ARX, Model
+from .terms import CompiledTerms, Factor, Term
 
 FloatArray = NDArray[np.float64]
 
 if TYPE_CHECKING:
-    from tendonkit.simulate import Initial
+    from .simulate import Initial
 
 
 def arx_max_lag(rep: ARX, nu: int) -> int:
     """Number of samples of history an ARX model needs."""
-    from tendonkit.realize import arx_lag_matrices
+    from .realize import arx_lag_matrices
 
     L = len(arx_lag_matrices(rep, nu)) - 1
     return max(rep.na, L, max((t.max_lag for t in rep.terms), default=0), 1)
 
 
 def _arx_parts(model: Model, rep: ARX) -> tuple[FloatArray, list[FloatArray], FloatArray]:
-    from tendonkit.realize import arx_lag_matrices
+    from .realize import arx_lag_matrices
 
     ny, nu = len(model.outputs), len(model.inputs)
     Acat = np.hstack(rep.A) if rep.A else np.zeros((ny, 0))
@@ -94,7 +94,7 @@ def _sim_arx(
     # Nonlinear terms.  Terms of inputs only are known for every sample in advance; terms
     # affine in one past output (an input-dependent gain, e.g. bilinear u·y) make the
     # recursion linear with time-varying coefficients; only the rest are evaluated per step.
-    from tendonkit.terms import scalar_evaluator
+    from .terms import scalar_evaluator
 
     M, forced, general, gcoef = _time_varying_part(model, rep, U, forced, L, N, coef)
     width = M.shape[2] // ny
@@ -141,7 +141,7 @@ def _time_varying_part(
     [y[k-1]; …; y[k-width]] + general terms``, the input contribution including the terms of
     inputs only, and the remaining (general) terms with their coefficients.
     """
-    from tendonkit.terms import series_getter
+    from .terms import series_getter
 
     ny = len(model.outputs)
     inputs, outputs = set(model.input_names), list(model.output_names)
@@ -191,7 +191,7 @@ def _arx_block(
     """
     import dataclasses
 
-    from tendonkit.realize import arx_to_state_space
+    from .realize import arx_to_state_space
 
     ny, nu = Y.shape[1], U.shape[1]
     B = tuple(np.hstack([b, np.zeros((ny, 1))]) for b in rep.B) or (np.zeros((ny, nu + 1)),)
@@ -213,6 +213,6 @@ def _arx_block(
         if ss.A.shape[0]
         else np.zeros(0)
     )
-    from tendonkit.simulate import ss_response
+    from .simulate import ss_response
 
     return ss_response(ss.A, ss.B, ss.C, ss.D, Ua[kk : L + N], x0)

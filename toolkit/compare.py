@@ -12,12 +12,12 @@ from typing import Any
 
 import numpy as np
 
-from tendonkit.dataset import Dataset
-from tendonkit.errors import DataError
-from tendonkit.metrics import FitRow, fit, fit_table
-from tendonkit.predict import predict
-from tendonkit.schema import Model
-from tendonkit.simulate import simulate
+from .dataset import Dataset
+from .errors import DataError
+from .metrics import FitRow, fit, fit_table
+from .predict import predict
+from .schema import Model
+from .simulate import simulate
 
 
 def score(
@@ -27,7 +27,7 @@ def score(
 
     Returns the fits and the simulated (or k-step predicted) outputs per experiment.
     """
-    from tendonkit.simulate import _aligned
+    from .simulate import _aligned
 
     data = _aligned(model, data)
     sims = []
@@ -75,7 +75,7 @@ def compare(
             "mean_fit": float(np.mean(list(fits.values()))),
         }
         if joints or ee or plot_dir:
-            from tendonkit.robot.reconstruct import joint_report
+            from .robot.reconstruct import joint_report
 
             row.update(
                 joint_report(
@@ -126,14 +126,14 @@ def plot_compare(
     initial: str = "estimate",
 ) -> list[str]:
     """Measured vs simulated outputs of every model (one PNG), as :func:`compare` scores them."""
-    from tendonkit.figures import plot_outputs
+    from .figures import plot_outputs
 
     sims: dict[str, np.ndarray] = {}
     model0 = models[0]
     for name, model in zip(names, models):
         _, s = score(model, data, initial=initial)
         sims[str(name)] = np.vstack(s)
-    from tendonkit.simulate import _aligned
+    from .simulate import _aligned
 
     aligned = _aligned(model0, data)
     t = np.concatenate([e.t for e in aligned.experiments])

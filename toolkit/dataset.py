@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from tendonkit.errors import DataError
+from .errors import DataError
 
 FloatArray = NDArray[np.float64]
 

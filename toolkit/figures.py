@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-FloatArray = NDArray[np.float64]
+FloatArray = NDArray[np.floating[Any]]
 
 
 def _plt() -> Any:
@@ -178,6 +178,6 @@ def plot_correlation(
 
 def __getattr__(name: str) -> Any:
     # The robot's figures lived here in 0.1 (now tendonkit.robot.figures), for one release.
-    from tendonkit._compat import moved_name
+    from ._compat import moved_name
 
     return moved_name(__name__, name)

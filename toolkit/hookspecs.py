@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 import pluggy
 
 if TYPE_CHECKING:
-    from tendonkit.registry import EffectRegistry, IdentifierRegistry
+    from .registry import EffectRegistry, IdentifierRegistry
 
 PROJECT = "tendonkit"
 hookspec = pluggy.HookspecMarker(PROJECT)

@@ -12,10 +12,10 @@ from typing import Any
 
 import numpy as np
 
-from tendonkit.dataset import Dataset
-from tendonkit.errors import DataError
-from tendonkit.metrics import fit
-from tendonkit.schema import Model, Provenance, Representation, Signal
+from .dataset import Dataset
+from .errors import DataError
+from .metrics import fit
+from .schema import Model, Provenance, Representation, Signal
 
 _SKIP_TRAINING_FIT: contextvars.ContextVar[bool] = contextvars.ContextVar(
     "tendonkit_skip_training_fit", default=False
@@ -116,7 +116,7 @@ def build_model(
 
 def training_fit(model: Model, dataset: Dataset) -> dict[str, float]:
     """Free-run fit per output over all experiments of ``dataset`` (initial state estimated)."""
-    from tendonkit.simulate import simulate_dataset
+    from .simulate import simulate_dataset
 
     sims = simulate_dataset(model, dataset, initial="estimate")
     y = np.vstack([e.y for e in dataset.experiments])

@@ -9,9 +9,9 @@ from typing import Any
 
 import pluggy
 
-from tendonkit import hookspecs
-from tendonkit.errors import PluginError
-from tendonkit.registry import EffectRegistry, IdentifierRegistry
+from . import hookspecs
+from .errors import PluginError
+from .registry import EffectRegistry, IdentifierRegistry
 
 ENTRY_POINT_GROUP = "tendonkit"
 

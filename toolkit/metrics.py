@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from tendonkit.errors import DataError
+from .errors import DataError
 
 FloatArray = NDArray[np.float64]
 

@@ -11,16 +11,16 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from tendonkit._simulate_arx import _arx_parts, arx_max_lag
-from tendonkit.errors import DataError, SimulationError
-from tendonkit.schema import ARX, Model, SparseMap, StateSpace
-from tendonkit.simulate import (
+from ._simulate_arx import _arx_parts, arx_max_lag
+from .errors import DataError, SimulationError
+from .schema import ARX, Model, SparseMap, StateSpace
+from .simulate import (
     _apply_blocks,
     _check_u,
     estimate_x0,
     ss_theta_measured,
 )
-from tendonkit.terms import CompiledTerms
+from .terms import CompiledTerms
 
 FloatArray = NDArray[np.float64]
 

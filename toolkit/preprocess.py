@@ -19,8 +19,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from tendonkit.dataset import Dataset
-from tendonkit.errors import OptionError
+from .dataset import Dataset
+from .errors import OptionError
 
 PAPER_CUTOFF = 0.001  # "rad per sample"
 

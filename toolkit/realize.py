@@ -7,8 +7,8 @@ from typing import Any
 
 import numpy as np
 
-from tendonkit.errors import SchemaError
-from tendonkit.schema import ARX, Model, StateSpace
+from .errors import SchemaError
+from .schema import ARX, Model, StateSpace
 
 
 def arx_lag_matrices(rep: ARX, nu: int) -> list[np.ndarray]:
@@ -62,7 +62,7 @@ def add_input_delays(ss: StateSpace, delays: Sequence[Any]) -> StateSpace:
     ``delays[m]`` is input m's delay in samples (fractional allowed, see
     :func:`tendonkit.simulate.fractional_delay`) or its FIR taps ``v[k] = Σ_i taps[i] u[k-i]``.
     """
-    from tendonkit.simulate import delay_taps
+    from .simulate import delay_taps
 
     taps = [
         np.atleast_1d(np.asarray(d, dtype=float)) if np.ndim(d) else delay_taps(float(d))  # type: ignore[arg-type]
@@ -115,7 +115,7 @@ def to_state_space(model: Model) -> StateSpace:
         ss = arx_to_state_space(rep, nu)
     else:  # pragma: no cover - is_linear excludes it
         raise SchemaError(f"{rep.kind} has no state-space form.")
-    from tendonkit.simulate import delay_taps
+    from .simulate import delay_taps
 
     taps = [np.ones(1) for _ in range(nu)]
     for b in model.input_blocks:

@@ -9,7 +9,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
 
-from tendonkit.errors import OptionError, PluginError
+from .errors import OptionError, PluginError
 
 #: The fixed vocabulary of physical causes ``diagnose`` can name.
 CAUSES: tuple[str, ...] = (

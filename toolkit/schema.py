@@ -27,8 +27,8 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from tendonkit.errors import SchemaError
-from tendonkit.terms import Term
+from .errors import SchemaError
+from .terms import Term
 
 SCHEMA_VERSION = 1
 FloatArray = NDArray[np.float64]
@@ -249,7 +249,7 @@ class Model:
         """
         import control
 
-        from tendonkit.realize import to_state_space
+        from .realize import to_state_space
 
         if not self.is_linear:
             raise SchemaError(
@@ -305,7 +305,7 @@ class Model:
     @classmethod
     def from_dict(cls, data: Any, source: str = "model") -> Model:
         """Build and validate a model from plain data, listing every problem found."""
-        from tendonkit._schema_io import model_from_dict
+        from ._schema_io import model_from_dict
 
         return model_from_dict(data, source)
 

@@ -21,10 +21,10 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from tendonkit.dataset import Dataset
-from tendonkit.errors import DataError, SimulationError
-from tendonkit.schema import ARX, Block, Model, SparseMap, StateSpace
-from tendonkit.terms import CompiledTerms
+from .dataset import Dataset
+from .errors import DataError, SimulationError
+from .schema import ARX, Block, Model, SparseMap, StateSpace
+from .terms import CompiledTerms
 
 FloatArray = NDArray[np.float64]
 Initial = Literal["zero", "model", "estimate"] | FloatArray
@@ -269,7 +269,7 @@ def _sim_ss(rep: StateSpace, u: FloatArray, y: FloatArray | None, initial: Initi
 
 def ss_theta_measured(model: Model, u: FloatArray, y: FloatArray) -> FloatArray:
     """The terms of a model evaluated on measured signals (series-parallel), shape (n, n_terms)."""
-    from tendonkit.terms import series_getter
+    from .terms import series_getter
 
     rep = model.representation
     assert isinstance(rep, StateSpace | ARX)
@@ -442,7 +442,7 @@ def _sim_sparse(
 
 
 # ARX recursions live in their own module; imported last because they use ``ss_response``.
-from tendonkit._simulate_arx import _sim_arx, arx_max_lag  # noqa: E402
+from ._simulate_arx import _sim_arx, arx_max_lag  # noqa: E402
 
 __all__ = [
     "apply_block",

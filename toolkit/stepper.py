@@ -37,10 +37,10 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from tendonkit.errors import DataError
-from tendonkit.schema import ARX, Block, Model, SparseMap, StateSpace
-from tendonkit.simulate import split_delay
-from tendonkit.terms import CompiledTerms, scalar_evaluator
+from .errors import DataError
+from .schema import ARX, Block, Model, SparseMap, StateSpace
+from .simulate import split_delay
+from .terms import CompiledTerms, scalar_evaluator
 
 __all__ = ["Stepper", "feedthrough"]
 
@@ -157,8 +157,8 @@ class Stepper:
             self._ct = CompiledTerms(rep.terms)
             self._lag = max((t.max_lag for t in rep.terms), default=1)
         elif isinstance(rep, ARX):
-            from tendonkit.realize import arx_lag_matrices
-            from tendonkit.simulate import arx_max_lag
+            from .realize import arx_lag_matrices
+            from .simulate import arx_max_lag
 
             self._G = arx_lag_matrices(rep, self.nu) if rep.B else [np.zeros((self.ny, self.nu))]
             self._lag = arx_max_lag(rep, self.nu)
@@ -388,7 +388,7 @@ def feedthrough(model: Model, initial: bool = False) -> dict[str, list[str]]:
     if isinstance(rep, StateSpace):
         direct |= rep.D != 0
     elif isinstance(rep, ARX):
-        from tendonkit.realize import arx_lag_matrices
+        from .realize import arx_lag_matrices
 
         if rep.B:
             direct |= arx_lag_matrices(rep, nu)[0] != 0

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from tendonkit.errors import SchemaError
+from .errors import SchemaError
 
 #: The closed set of functions a factor may apply (``z`` is the scaled, shifted signal).
 FUNCTIONS: dict[str, str] = {

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from tendonkit.dataset import Dataset
-from tendonkit.schema import Model, Provenance, Signal, StateSpace
-from tendonkit.simulate import ss_response
+from .dataset import Dataset
+from .schema import Model, Provenance, Signal, StateSpace
+from .simulate import ss_response
 
 FloatArray = NDArray[np.float64]
 

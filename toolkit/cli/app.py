@@ -17,7 +17,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from tendonkit.errors import DataError, OptionError, TendonkitError
+from ..errors import DataError, OptionError, TendonkitError
 
 EXIT_USAGE = 2
 
@@ -114,7 +114,7 @@ def identifier_arguments(
     Every problem is appended to ``problems``; the options object is None when the method or
     its options are invalid.
     """
-    from tendonkit.manager import identifiers
+    from ..manager import identifiers
 
     inputs, outputs = split_names(args.inputs), split_names(args.outputs)
     if not outputs:
@@ -136,7 +136,7 @@ def identifier_arguments(
 
 def cmd_identify(args: argparse.Namespace) -> int:
     """Identify a model from CSV data with a registered method."""
-    from tendonkit.dataset import Dataset
+    from ..dataset import Dataset
 
     problems: list[str] = []
     inputs, outputs, _, factory = identifier_arguments(args, problems)
@@ -150,7 +150,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
     raise_problems(problems, "tendonkit identify cannot run:")
     assert data is not None and factory is not None
     if cutoff is not None:
-        from tendonkit.preprocess import lowpass
+        from ..preprocess import lowpass
 
         data = lowpass(data, cutoff)
     model = factory.identify(data)
@@ -174,7 +174,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
 
 def _lowpass_cutoff(value: str, data: Any, problems: list[str]) -> float | None:
     """``--lowpass``: a cut-off in Hz, or ``paper`` / ``paper-matlab`` (the paper's filter)."""
-    from tendonkit.preprocess import paper_cutoff_hz
+    from ..preprocess import paper_cutoff_hz
 
     if data is None:
         return None
@@ -207,9 +207,9 @@ def _noted(model: Any, text: str) -> Any:
 
 def cmd_simulate(args: argparse.Namespace) -> int:
     """Simulate a model on the inputs of a CSV file and write its outputs as CSV."""
-    from tendonkit.dataset import Dataset, write_csv
-    from tendonkit.predict import predict
-    from tendonkit.simulate import simulate
+    from ..dataset import Dataset, write_csv
+    from ..predict import predict
+    from ..simulate import simulate
 
     problems: list[str] = []
     model = _load_model(args.model, problems)
@@ -255,8 +255,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _load_model(path: str, problems: list[str]) -> Any:
-    from tendonkit.errors import SchemaError
-    from tendonkit.schema import Model
+    from ..errors import SchemaError
+    from ..schema import Model
 
     try:
         return Model.load(path)
@@ -267,7 +267,7 @@ def _load_model(path: str, problems: list[str]) -> Any:
 
 def cmd_compare(args: argparse.Namespace) -> int:
     """Fit of one or more models on data: the paper's Table I."""
-    from tendonkit.compare import compare, render_compare
+    from ..compare import compare, render_compare
 
     problems: list[str] = []
     data_files = [f for f in args.files if f.lower().endswith(".csv")]
@@ -301,8 +301,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
     """Find what the baseline model gets wrong, name the cause, extend and measure the gain."""
-    from tendonkit.dataset import Dataset
-    from tendonkit.manager import effects
+    from ..dataset import Dataset
+    from ..manager import effects
 
     problems: list[str] = []
     inputs, outputs, options, _ = identifier_arguments(args, problems)
@@ -330,7 +330,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
             f"training and validation sample times differ: {data[0].dt} s and {data[1].dt} s."
         )
     raise_problems(problems, "tendonkit diagnose cannot run:")
-    from tendonkit.diagnose import diagnose
+    from ..diagnose import diagnose
 
     train, valid = data
     result = diagnose(
@@ -358,7 +358,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     if args.json:
         write_json(args.json, summary)
     if args.report:
-        from tendonkit.diagnose.report import write_report
+        from ..diagnose.report import write_report
 
         index = write_report(result, valid, args.report, model_path)
         summary["report"] = str(index)
@@ -368,7 +368,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 
 def render_diagnosis(summary: dict[str, Any]) -> str:
     """Plain-text summary of a diagnosis."""
-    from tendonkit.diagnose.findings import evidence_notes
+    from ..diagnose.findings import evidence_notes
 
     lines = [
         f"cause: {summary['cause']}",
@@ -410,7 +410,7 @@ def render_diagnosis(summary: dict[str, Any]) -> str:
 
 def cmd_plugins(args: argparse.Namespace) -> int:
     """List registered identifiers and effects."""
-    from tendonkit.manager import FAILURES, effects, identifiers, plugin_manager
+    from ..manager import FAILURES, effects, identifiers, plugin_manager
 
     plugin_manager()
     ids = identifiers()
@@ -443,7 +443,7 @@ def cmd_plugins(args: argparse.Namespace) -> int:
 
 def cmd_demo(args: argparse.Namespace) -> int:
     """Run the main job and write its report."""
-    from tendonkit.robot.study import run_demo
+    from ..robot.study import run_demo
 
     out = Path(args.out)
     problems: list[str] = []
@@ -465,7 +465,7 @@ _EXTRA_COMMANDS: list[tuple[str, str]] = [
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``tendonkit`` command."""
-    from tendonkit import __version__
+    from .. import __version__
 
     parser = _Parser(
         prog="tendonkit",

@@ -23,15 +23,15 @@ from typing import Any
 
 import numpy as np
 
-from tendonkit.cli.app import check_output_path, raise_problems, write_json
-from tendonkit.errors import OptionError, SchemaError
+from ..errors import OptionError, SchemaError
+from .app import check_output_path, raise_problems, write_json
 
 __all__ = ["add_commands", "cmd_mpc"]
 
 
 def add_commands(sub: Any) -> None:
     """Add the ``mpc`` subcommand to the ``tendonkit`` subparsers."""
-    from tendonkit.robot.cosim import REFERENCES
+    from ..robot.cosim import REFERENCES
 
     p = sub.add_parser(
         "mpc",
@@ -103,7 +103,7 @@ def _plant(args: argparse.Namespace, problems: list[str]) -> tuple[Any, dict[str
             except OptionError as exc:
                 problems.extend(exc.problems or [str(exc)])
             return None, {}, None
-        from tendonkit.robot.collect import fmu_parameters
+        from ..robot.collect import fmu_parameters
 
         try:
             base = fmu_parameters(args.plant)
@@ -126,8 +126,8 @@ def _plant(args: argparse.Namespace, problems: list[str]) -> tuple[Any, dict[str
 
 def cmd_mpc(args: argparse.Namespace) -> int:
     """Co-simulate the plant with the MPC for a model and report the tracking."""
-    from tendonkit.cli.app import _load_model
-    from tendonkit.robot.cosim import ControllerSettings, controller_kind, make_reference
+    from ..robot.cosim import ControllerSettings, controller_kind, make_reference
+    from .app import _load_model
 
     problems: list[str] = []
     model = _load_model(args.model, problems)
@@ -180,7 +180,8 @@ def _run(
     import sys
 
     from tendonkit.fmu.build import cached_plant_fmu
-    from tendonkit.robot.cosim import DEFAULTS, make_controller, open_loop, plot_tracking, run
+
+    from ..robot.cosim import DEFAULTS, make_controller, open_loop, plot_tracking, run
 
     fmu = plant if plant is not None else cached_plant_fmu(params)
     progress = not args.no_progress and sys.stderr.isatty()

@@ -13,8 +13,8 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from tendonkit.cli.app import atomic_write, check_output_path, raise_problems, write_json
-from tendonkit.errors import DataError, OptionError, SchemaError
+from ..errors import DataError, OptionError, SchemaError
+from .app import atomic_write, check_output_path, raise_problems, write_json
 
 PROTOCOLS = ("circles", "random", "petal")
 
@@ -136,7 +136,7 @@ def _radii(items: list[str] | None, problems: list[str]) -> list[float] | None:
 
 
 def _protocol(args: argparse.Namespace, problems: list[str]) -> Any:
-    from tendonkit.robot.protocol import circles, petal, pseudo_random
+    from ..robot.protocol import circles, petal, pseudo_random
 
     radii = _radii(args.radii, problems)
     if args.radii and args.protocol != "circles":
@@ -176,9 +176,10 @@ def _truncate(prot: Any, seconds: float) -> Any:
 
 def cmd_collect(args: argparse.Namespace) -> int:
     """Drive the plant FMU with a protocol and write the frames as CSV."""
-    from tendonkit.dataset import write_csv
     from tendonkit.fmu.build import cached_plant_fmu, plant_parameters
-    from tendonkit.robot.collect import collect, fmu_parameters
+
+    from ..dataset import write_csv
+    from ..robot.collect import collect, fmu_parameters
 
     problems: list[str] = []
     inputs = [args.plant] if args.plant else []
@@ -214,7 +215,7 @@ def cmd_collect(args: argparse.Namespace) -> int:
     atomic_write(args.output, lambda p: write_csv(p, rec.columns))
     figures: list[str] = []
     if args.plot:
-        from tendonkit.robot.figures import fig2
+        from ..robot.figures import fig2
 
         figures = [str(p) for p in fig2(rec.columns, args.plot, prot.ee_ref, title=prot.name)]
     summary = {
@@ -244,7 +245,7 @@ def _read_ratios(path: str, problems: list[str]) -> tuple[float, ...] | None:
     """The four ratios (r3, r4, r5, r6) of a ratios file in the format of
     :class:`tendonkit.robot.reconstruct.Ratios` (keys q3, q4, q5, q6 — what ``compare --joints``
     reports as estimates)."""
-    from tendonkit.robot.reconstruct import Ratios
+    from ..robot.reconstruct import Ratios
 
     try:
         r = Ratios.load(path)
@@ -260,8 +261,9 @@ def _read_ratios(path: str, problems: list[str]) -> tuple[float, ...] | None:
 
 def cmd_export(args: argparse.Namespace) -> int:
     """Export a model JSON as an FMI 2.0 co-simulation FMU."""
-    from tendonkit.cli.app import _load_model
     from tendonkit.fmu.build import build_model_fmu, model_fmu_problems
+
+    from .app import _load_model
 
     problems: list[str] = []
     model = _load_model(args.model, problems)

@@ -49,8 +49,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from tendonkit.dataset import Dataset
-from tendonkit.diagnose.findings import (
+from ..dataset import Dataset
+from ..errors import OptionError
+from ..metrics import fit
+from ..schema import Model
+from ..simulate import _aligned, simulate
+from .findings import (
     DEFAULT_EXPERIMENT,
     DISCRIMINATING,
     Diagnosis,
@@ -58,12 +62,8 @@ from tendonkit.diagnose.findings import (
     _ambiguity,
     _mean,
 )
-from tendonkit.diagnose.residuals import ResidualAnalysis, analyse
-from tendonkit.diagnose.stats import holm, loss_test
-from tendonkit.errors import OptionError
-from tendonkit.metrics import fit
-from tendonkit.schema import Model
-from tendonkit.simulate import _aligned, simulate
+from .residuals import ResidualAnalysis, analyse
+from .stats import holm, loss_test
 
 FloatArray = NDArray[np.float64]
 
@@ -95,7 +95,7 @@ class Context:
 
     def refit(self, data: Dataset) -> Model:
         """Identify with the baseline's identifier and options on ``data`` (no training fit)."""
-        from tendonkit.identification import without_training_fit
+        from ..identification import without_training_fit
 
         with without_training_fit():
             return self.identifier.identify(data)
@@ -267,8 +267,8 @@ def diagnose(
     """
     from tqdm import tqdm
 
-    from tendonkit.manager import effects as effect_registry
-    from tendonkit.manager import identifiers
+    from ..manager import effects as effect_registry
+    from ..manager import identifiers
 
     problems = []
     if not 0 < alpha < 0.5:
@@ -435,7 +435,7 @@ def _direct_test(
     except (TypeError, KeyError, ValueError):
         p = math.nan
     if not 0.0 <= p <= 1.0:
-        from tendonkit.errors import PluginError
+        from ..errors import PluginError
 
         raise PluginError(
             f"effect {getattr(effect, 'name', effect)!r}:",
@@ -462,8 +462,8 @@ def check_baseline(baseline: Model, train: Dataset, method: str) -> dict[str, An
     *biased* when ``E_base > BIAS_RATIO · E_n4sid``.  Returns None when the baseline is N4SID
     or the reference cannot be identified.
     """
-    from tendonkit.errors import TendonkitError
-    from tendonkit.manager import identifiers
+    from ..errors import TendonkitError
+    from ..manager import identifiers
 
     if method == "n4sid":
         return None
@@ -533,7 +533,7 @@ def _name_cause(
 
 def _with_training_fit(f: Finding, train: Dataset) -> Finding:
     """Fill in the training fit of a finding's extended model (skipped while searching)."""
-    from tendonkit.identification import training_fit
+    from ..identification import training_fit
 
     if f.model is None or not f.significant:
         return f

@@ -21,55 +21,14 @@ from collections.abc import Callable, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from tendonkit.dataset import Dataset, Experiment
-from tendonkit.errors import SchemaError
-from tendonkit.schema import ARX, Block, Model, SparseMap, StateSpace
-from tendonkit.simulate import _aligned, apply_block
-from tendonkit.terms import CompiledTerms, Term, series_getter
+from ..dataset import Dataset, Experiment
+from ..errors import SchemaError
+from ..regression import scaled_lstsq, term_columns_of
+from ..schema import ARX, Block, Model, SparseMap, StateSpace
+from ..simulate import _aligned, apply_block
+from ..terms import Term
 
 FloatArray = NDArray[np.float64]
-
-
-def scaled_lstsq(Phi: FloatArray, Y: FloatArray, ridge: float = 0.0) -> FloatArray:
-    """Least squares with unit-norm column scaling and optional ridge.
-
-    The tall problem is reduced by a blocked Householder QR of ``[Phi | Y]`` (LAPACK geqrf,
-    orthogonal, so no squaring of the condition number as with normal equations); the small
-    triangular problem is then solved by a rank-revealing SVD solver, which also handles
-    exactly collinear regressors.
-    """
-    from scipy.linalg import lstsq, qr
-
-    scale = np.linalg.norm(Phi, axis=0)
-    scale[scale == 0] = 1.0
-    P = Phi / scale
-    k = P.shape[1]
-    if ridge > 0:
-        P = np.vstack([P, np.sqrt(ridge) * np.eye(k)])
-        Y = np.vstack([Y, np.zeros((k, Y.shape[1]))])
-    if P.shape[0] > 4 * (k + Y.shape[1]):
-        R = qr(np.hstack([P, Y]), mode="r", check_finite=False)[0]
-        m = min(R.shape[0], k)
-        P, Y = R[:m, :k], R[:m, k:]
-    theta, *_ = lstsq(P, Y, check_finite=False, cond=1e-13)
-    return np.asarray(theta / scale[:, None])
-
-
-def _term_columns(terms: Sequence[Term], signals: dict[str, FloatArray], n: int) -> FloatArray:
-    ct = CompiledTerms(terms)
-    if not ct.keys:
-        return np.ones((n, ct.n_terms))
-    get = series_getter(signals)
-    return ct.evaluate(np.array([get(name, lag) for name, lag in ct.keys])).T
-
-
-def term_columns(terms: Sequence[Term], e: Experiment, data: Dataset) -> FloatArray:
-    """``(n, n_terms)`` values of ``terms`` on experiment ``e`` of ``data`` (signals by name)."""
-    signals = {
-        **{n: e.u[:, j] for j, n in enumerate(data.inputs)},
-        **{n: e.y[:, j] for j, n in enumerate(data.outputs)},
-    }
-    return _term_columns(terms, signals, e.n_samples)
 
 
 def _signals(model: Model, e: Experiment) -> dict[str, FloatArray]:
@@ -130,7 +89,7 @@ def _extend_ss_by_refit(
     exps = []
     for e in data.experiments:
         sig = {**_signals(model, e)}
-        theta = _term_columns(all_terms, sig, e.n_samples)
+        theta = term_columns_of(all_terms, sig, e.n_samples)
         exps.append(dataclasses.replace(e, u=np.hstack([e.u, theta])))
     augmented = Dataset(
         inputs=data.inputs + names, outputs=data.outputs, experiments=tuple(exps), dt=data.dt
@@ -173,7 +132,7 @@ def _extend_arx(model: Model, rep: ARX, data: Dataset, terms: tuple[Term, ...]) 
                 cols.append(e.u[lag - d : n - d, m : m + 1])
         if rep.offset is not None:
             cols.append(np.ones((n - lag, 1)))
-        cols.append(_term_columns(all_terms, _signals(model, e), n)[lag:])
+        cols.append(term_columns_of(all_terms, _signals(model, e), n)[lag:])
         rows.append(np.hstack(cols))
         targets.append(e.y[lag:])
     theta = scaled_lstsq(np.vstack(rows), np.vstack(targets))
@@ -242,7 +201,7 @@ def _extend_sparse(model: Model, rep: SparseMap, data: Dataset, terms: tuple[Ter
             **{n: x[:, i] for i, n in enumerate(state_names)},
             **{n: e.u[:, j] for j, n in enumerate(model.input_names)},
         }
-        cols = _term_columns(all_terms, sig, e.n_samples)
+        cols = term_columns_of(all_terms, sig, e.n_samples)
         rows.append(cols[lag:-1])
         targets.append(x[lag + 1 :])
     coef = scaled_lstsq(np.vstack(rows), np.vstack(targets), ridge=1e-10)
@@ -278,7 +237,7 @@ def _extend_ss(model: Model, rep: StateSpace, data: Dataset, terms: tuple[Term, 
     blocks, targets = [], []
     n_exp = len(data.experiments)
     for ei, e in enumerate(data.experiments):
-        theta = _term_columns(all_terms, _signals(model, e), e.n_samples)
+        theta = term_columns_of(all_terms, _signals(model, e), e.n_samples)
         sig = np.hstack([e.u, theta])
         resp = _unit_responses(rep.A, rep.C, sig)  # (N, ny, nx*nc)
         N = e.n_samples

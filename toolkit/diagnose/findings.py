@@ -13,9 +13,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from tendonkit.diagnose.residuals import ResidualAnalysis
-from tendonkit.diagnose.stats import loss_test
-from tendonkit.schema import Model
+from ..schema import Model
+from .residuals import ResidualAnalysis
+from .stats import loss_test
 
 FloatArray = NDArray[np.float64]
 

@@ -7,11 +7,11 @@ from typing import Any
 
 import numpy as np
 
-from tendonkit.dataset import Dataset
-from tendonkit.diagnose import Diagnosis
-from tendonkit.diagnose.engine import _simulate_all
-from tendonkit.diagnose.findings import evidence_notes
-from tendonkit.report import Report
+from ..dataset import Dataset
+from ..report import Report
+from . import Diagnosis
+from .engine import _simulate_all
+from .findings import evidence_notes
 
 
 def explaining_signal(cause: str, data: Dataset, j: int) -> tuple[np.ndarray, str]:
@@ -37,7 +37,7 @@ def write_report(
     diagnosis: Diagnosis, valid: Dataset, folder: str | Path, model_path: str | None = None
 ) -> Path:
     """Write ``index.html`` with figures into ``folder`` and return its path."""
-    from tendonkit.figures import (
+    from ..figures import (
         plot_correlation,
         plot_outputs,
         plot_ranking,

@@ -18,8 +18,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from tendonkit.dataset import Dataset
-from tendonkit.schema import Model
+from ..dataset import Dataset
+from ..schema import Model
 
 FloatArray = NDArray[np.float64]
 
@@ -193,9 +193,9 @@ def analyse(
     -------
     ResidualAnalysis
     """
-    from tendonkit.metrics import fit
-    from tendonkit.predict import predict
-    from tendonkit.simulate import _aligned, simulate
+    from ..metrics import fit
+    from ..predict import predict
+    from ..simulate import _aligned, simulate
 
     data = _aligned(model, data)
     res, one, us, ys = [], [], [], []

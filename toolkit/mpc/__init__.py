@@ -35,8 +35,8 @@ Examples
 
 from __future__ import annotations
 
-from tendonkit.mpc.base import InputTarget, NoiseCovariance, StepResult
-from tendonkit.mpc.linear import LinearMPC
-from tendonkit.mpc.nonlinear import NonlinearMPC
+from .base import InputTarget, NoiseCovariance, StepResult
+from .linear import LinearMPC
+from .nonlinear import NonlinearMPC
 
 __all__ = ["InputTarget", "LinearMPC", "NoiseCovariance", "NonlinearMPC", "StepResult"]

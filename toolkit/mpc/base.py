@@ -13,9 +13,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from tendonkit.errors import DataError, OptionError, raise_if
-from tendonkit.mpc.qp import SOLVERS, QPResult, QPSpec, TrackingQP
-from tendonkit.schema import Model
+from ..errors import DataError, OptionError, raise_if
+from ..schema import Model
+from .qp import SOLVERS, QPResult, QPSpec, TrackingQP
 
 FloatArray = NDArray[np.float64]
 

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from tendonkit.schema import Model, Provenance, Signal, SparseMap, StateSpace
-from tendonkit.terms import Factor, Term
+from ..schema import Model, Provenance, Signal, SparseMap, StateSpace
+from ..terms import Factor, Term
 
 TENDONS = tuple(Signal(f"F{i}", "N") for i in range(1, 5))
 
@@ -136,7 +136,7 @@ def random_tendon_model(n_states: int = 8, *, seed: int = 0, gain: float = 0.006
     gain : float
         Largest absolute static gain (rad/N).
     """
-    from tendonkit.testsystems import random_state_space
+    from ..testsystems import random_state_space
 
     base = random_state_space(n_states, 2, 2, seed=seed, dt=0.03).representation
     assert isinstance(base, StateSpace)

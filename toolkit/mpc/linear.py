@@ -25,11 +25,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from tendonkit.errors import OptionError
-from tendonkit.mpc.base import _MPC, InputTarget, NoiseCovariance, _formulation
-from tendonkit.mpc.qp import QPResult, TrackingQP
-from tendonkit.realize import to_state_space
-from tendonkit.schema import ARX, Model, StateSpace
+from ..errors import OptionError
+from ..realize import to_state_space
+from ..schema import ARX, Model, StateSpace
+from .base import _MPC, InputTarget, NoiseCovariance, _formulation
+from .qp import QPResult, TrackingQP
 
 FloatArray = NDArray[np.float64]
 
@@ -95,7 +95,7 @@ def prediction_model(model: Model, reduce: str | int = "minreal") -> LinearPredi
         # A(q) y = B(q) u + c: the offset adds the constant A(1)^-1 c to the outputs.
         a1 = np.eye(ny) + sum((a for a in rep.A), np.zeros((ny, ny)))
         try:
-            y_const = np.linalg.solve(a1, rep.offset)
+            y_const = np.asarray(np.linalg.solve(a1, rep.offset), dtype=np.float64)
         except np.linalg.LinAlgError:
             raise OptionError(
                 f"ARX model {model.name!r} has an offset and an integrator (A(1) is singular); "

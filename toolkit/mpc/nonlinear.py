@@ -18,11 +18,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from tendonkit.errors import OptionError
-from tendonkit.mpc.base import _MPC, InputTarget, NoiseCovariance, _LinearizationError
-from tendonkit.mpc.qp import QPResult, TrackingQP
-from tendonkit.schema import Model, SparseMap
-from tendonkit.terms import CompiledTerms
+from ..errors import OptionError
+from ..schema import Model, SparseMap
+from ..terms import CompiledTerms
+from .base import _MPC, InputTarget, NoiseCovariance, _LinearizationError
+from .qp import QPResult, TrackingQP
 
 FloatArray = NDArray[np.float64]
 

@@ -37,7 +37,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from tendonkit.errors import OptionError
+from ..errors import OptionError
 
 FloatArray = NDArray[np.float64]
 

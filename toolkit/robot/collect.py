@@ -35,9 +35,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from tendonkit.dataset import Dataset, write_csv
-from tendonkit.errors import FMUError, OptionError, raise_if
-from tendonkit.robot.protocol import Protocol
+from ..dataset import Dataset, write_csv
+from ..errors import FMUError, OptionError, raise_if
+from .protocol import Protocol
 
 __all__ = [
     "COLUMNS",

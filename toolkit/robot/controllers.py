@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from tendonkit.errors import OptionError, raise_if
+from ..errors import OptionError, raise_if
 
 #: Nominal pretension per tendon (N): the pair sums the controllers hold are twice this.
 PRETENSION = 105.0
@@ -100,8 +100,8 @@ def controller_kind(model: Any) -> str:
     >>> controller_kind(two_mode_model()), controller_kind(tendon_sparse_map())
     ('linear', 'nonlinear')
     """
-    from tendonkit.mpc.linear import linear_problems
-    from tendonkit.mpc.nonlinear import nonlinear_problems
+    from ..mpc.linear import linear_problems
+    from ..mpc.nonlinear import nonlinear_problems
 
     problems = []
     if len(model.inputs) != 4:
@@ -148,7 +148,7 @@ def make_controller(
     >>> type(ctrl).__name__, ctrl.horizon
     ('LinearMPC', 10)
     """
-    from tendonkit.mpc import InputTarget, LinearMPC, NoiseCovariance, NonlinearMPC
+    from ..mpc import InputTarget, LinearMPC, NoiseCovariance, NonlinearMPC
 
     kind = controller_kind(model)
     s = settings or ControllerSettings()

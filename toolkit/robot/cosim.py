@@ -36,8 +36,8 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from tendonkit.errors import FMUError, OptionError, raise_if
-from tendonkit.robot.controllers import (
+from ..errors import FMUError, OptionError, raise_if
+from .controllers import (
     DEFAULTS,
     PAIR_SUMS,
     PRETENSION,
@@ -45,7 +45,7 @@ from tendonkit.robot.controllers import (
     controller_kind,
     make_controller,
 )
-from tendonkit.robot.figures import plot_tracking
+from .figures import plot_tracking
 
 __all__ = [
     "DEFAULTS",
@@ -167,8 +167,8 @@ def make_reference(
     >>> make_reference("step", duration=3.0).q12.shape
     (100, 2)
     """
-    from tendonkit.robot import protocol
-    from tendonkit.robot.kinematics import commanded_tensions, expand_joints, forward_kinematics
+    from . import protocol
+    from .kinematics import commanded_tensions, expand_joints, forward_kinematics
 
     problems = []
     if kind not in REFERENCES:
@@ -333,8 +333,8 @@ class PlantFMU:
     """
 
     def __init__(self, path: str | Path, parameters: Mapping[str, Any] | None = None) -> None:
-        from tendonkit.robot.collect import OUTPUTS as ALL
-        from tendonkit.robot.collect import PlantSession
+        from .collect import OUTPUTS as ALL
+        from .collect import PlantSession
 
         path = Path(path)
         if not path.is_file():

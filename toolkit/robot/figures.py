@@ -15,10 +15,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from tendonkit.errors import DataError, OptionError
+from ..errors import DataError, OptionError
 
 if TYPE_CHECKING:
-    from tendonkit.robot.cosim import CosimResult
+    from .cosim import CosimResult
 
 __all__ = ["ee_path_figure", "fig2", "joint_angle_figure"]
 

@@ -22,8 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tendonkit.errors import DataError, OptionError
-from tendonkit.robot import N_JOINTS, PAN_JOINTS, PAPER_RATIOS, RobotParameters
+from ..errors import DataError, OptionError
+from . import N_JOINTS, PAN_JOINTS, PAPER_RATIOS, RobotParameters
 
 __all__ = [
     "ChainFrames",

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from tendonkit.errors import OptionError, raise_if
+from ..errors import OptionError, raise_if
 
 __all__ = [
     "N_JOINTS",
@@ -274,7 +274,7 @@ class RobotParameters:
     @cached_property
     def M0(self) -> np.ndarray:
         """Joint-space inertia at q = 0, kg m², shape (6, 6) (block-diagonal pan/tilt)."""
-        from tendonkit.robot.kinematics import mass_matrix  # kinematics imports this module
+        from .kinematics import mass_matrix  # kinematics imports this module
 
         return _readonly(mass_matrix(np.zeros(N_JOINTS), self))
 

@@ -20,9 +20,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.signal
 
-from tendonkit.errors import OptionError, raise_if
-from tendonkit.robot import PAPER_RATIOS, RobotParameters
-from tendonkit.robot.kinematics import (
+from ..errors import OptionError, raise_if
+from . import PAPER_RATIOS, RobotParameters
+from .kinematics import (
     commanded_tensions,
     expand_joints,
     forward_kinematics,

@@ -22,11 +22,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from tendonkit.dataset import Dataset
-from tendonkit.errors import DataError
-from tendonkit.metrics import fit
-from tendonkit.robot import PAPER_RATIOS
-from tendonkit.robot.kinematics import expand_joints, forward_kinematics
+from ..dataset import Dataset
+from ..errors import DataError
+from ..metrics import fit
+from . import PAPER_RATIOS
+from .kinematics import expand_joints, forward_kinematics
 
 FloatArray = NDArray[np.float64]
 
@@ -187,7 +187,7 @@ def joint_report(
             )
         out["ee_error_cm"] = ee_error_cm(ee_meas, ee_model)
     if plot_dir is not None:
-        from tendonkit.figures import plot_ee_path, plot_joints
+        from ..figures import plot_ee_path, plot_joints
 
         # experiments back to back: time runs on, and path lines break between experiments
         t = data.dt * np.arange(sum(e.n_samples for e in data.experiments))

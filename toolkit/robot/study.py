@@ -54,7 +54,7 @@ class _Stages:
 
 
 def _protocols(quick: bool, seed: int) -> dict[str, Any]:
-    from tendonkit.robot import protocol
+    from . import protocol
 
     radii = [0.02, 0.05, 0.08, 0.12] if quick else None
     return {
@@ -68,7 +68,8 @@ def _protocols(quick: bool, seed: int) -> dict[str, Any]:
 def _collect(out: Path, quick: bool, seed: int, progress: bool) -> dict[str, Any]:
     from tendonkit.fmu._config import PlantConfig
     from tendonkit.fmu.build import build_plant_fmu
-    from tendonkit.robot.collect import collect
+
+    from .collect import collect
 
     config = PlantConfig.preset("paper_like").replace(noise_on=True, seed=seed)
     plant = build_plant_fmu(out / "plant_paper_like.fmu", config)
@@ -92,7 +93,7 @@ def _collect(out: Path, quick: bool, seed: int, progress: bool) -> dict[str, Any
 
 
 def _identify(train: Any, quick: bool) -> dict[str, Any]:
-    from tendonkit.manager import identifiers
+    from ..manager import identifiers
 
     reg = identifiers()
     plan = {"n4sid": {"order": 8}, "arx": {"na": 8, "nb": 8, "nk": 1}, "sindyc": {}}
@@ -100,7 +101,7 @@ def _identify(train: Any, quick: bool) -> dict[str, Any]:
 
 
 def _table(models: dict[str, Any], valid: Any) -> dict[str, Any]:
-    from tendonkit.compare import compare
+    from ..compare import compare
 
     res = compare(list(models.values()), valid, names=list(models))
     for row in res["models"]:
@@ -128,8 +129,8 @@ def _render_table(res: dict[str, Any]) -> str:
 
 
 def _reconstruction(models: dict[str, Any], data: dict[str, Any], out: Path) -> dict[str, Any]:
-    from tendonkit.compare import score
-    from tendonkit.robot.reconstruct import Ratios, estimate_ratios, joint_report
+    from ..compare import score
+    from .reconstruct import Ratios, estimate_ratios, joint_report
 
     train, valid = data["train"], data["valid"]
     q_train = np.column_stack([train.signal(f"q{i}") for i in range(1, 7)])
@@ -163,8 +164,8 @@ def _render_reconstruction(rec: dict[str, Any]) -> str:
 def _diagnose(
     models: dict[str, Any], table: dict[str, Any], data: dict[str, Any], out: Path, quick: bool
 ) -> dict[str, Any]:
-    from tendonkit.diagnose import diagnose
-    from tendonkit.diagnose.report import write_report
+    from ..diagnose import diagnose
+    from ..diagnose.report import write_report
 
     best = max(table["models"], key=lambda r: r["mean_fit"])["model"]
     model = models[best]
@@ -206,7 +207,8 @@ def _export(diag: dict[str, Any], valid: Any, out: Path) -> dict[str, Any]:
     from fmpy.validation import validate_fmu
 
     from tendonkit.fmu.build import build_model_fmu
-    from tendonkit.stepper import Stepper
+
+    from ..stepper import Stepper
 
     model = diag["result"].extended
     path = build_model_fmu(model, out / "model.fmu")
@@ -312,7 +314,7 @@ def run_demo(
 
 
 def _fig2(data: dict[str, Any], out: Path) -> list[Path]:
-    from tendonkit.robot.figures import fig2
+    from .figures import fig2
 
     rec = data["recordings"]["train_circles"]
     return list(
@@ -323,7 +325,7 @@ def _fig2(data: dict[str, Any], out: Path) -> list[Path]:
 
 
 def _mpc(models: dict[str, Any], data: dict[str, Any], out: Path, quick: bool) -> dict[str, Any]:
-    from tendonkit.robot.cosim import make_controller, make_reference, open_loop, plot_tracking, run
+    from .cosim import make_controller, make_reference, open_loop, plot_tracking, run
 
     ref = make_reference("petal", duration=15.0 if quick else 40.0)
     plant = data["plant"]
@@ -363,7 +365,7 @@ def _write_report(
     diag: dict[str, Any],
     data: dict[str, Any],
 ) -> Path:
-    from tendonkit.report import Report
+    from ..report import Report
 
     rep = Report("tendonkit demo — the paper's study on the embedded plant", out)
     rep.text(

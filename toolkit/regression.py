@@ -1,0 +1,63 @@
+"""Linear regression shared by the identifiers and diagnose's extensions.
+
+:func:`scaled_lstsq` is the least-squares solver of ARX, of ARX with terms and of the
+extensions diagnose refits; :func:`term_columns` evaluates structured terms
+(:mod:`tendonkit.terms`) on a dataset as regressor columns.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .dataset import Dataset, Experiment
+from .terms import CompiledTerms, Term, series_getter
+
+__all__ = ["scaled_lstsq", "term_columns", "term_columns_of"]
+
+FloatArray = NDArray[np.float64]
+
+
+def scaled_lstsq(Phi: FloatArray, Y: FloatArray, ridge: float = 0.0) -> FloatArray:
+    """Least squares with unit-norm column scaling and optional ridge.
+
+    The tall problem is reduced by a blocked Householder QR of ``[Phi | Y]`` (LAPACK geqrf,
+    orthogonal, so no squaring of the condition number as with normal equations); the small
+    triangular problem is then solved by a rank-revealing SVD solver, which also handles
+    exactly collinear regressors.
+    """
+    from scipy.linalg import lstsq, qr  # lazy: heavy (scipy)
+
+    scale = np.linalg.norm(Phi, axis=0)
+    scale[scale == 0] = 1.0
+    P = Phi / scale
+    k = P.shape[1]
+    if ridge > 0:
+        P = np.vstack([P, np.sqrt(ridge) * np.eye(k)])
+        Y = np.vstack([Y, np.zeros((k, Y.shape[1]))])
+    if P.shape[0] > 4 * (k + Y.shape[1]):
+        R = qr(np.hstack([P, Y]), mode="r", check_finite=False)[0]
+        m = min(R.shape[0], k)
+        P, Y = R[:m, :k], R[:m, k:]
+    theta, *_ = lstsq(P, Y, check_finite=False, cond=1e-13)
+    return np.asarray(theta / scale[:, None])
+
+
+def term_columns_of(terms: Sequence[Term], signals: dict[str, FloatArray], n: int) -> FloatArray:
+    """``(n, n_terms)`` values of ``terms`` on named signal series (constants when no signal)."""
+    ct = CompiledTerms(terms)
+    if not ct.keys:
+        return np.ones((n, ct.n_terms))
+    get = series_getter(signals)
+    return ct.evaluate(np.array([get(name, lag) for name, lag in ct.keys])).T
+
+
+def term_columns(terms: Sequence[Term], e: Experiment, data: Dataset) -> FloatArray:
+    """``(n, n_terms)`` values of ``terms`` on experiment ``e`` of ``data`` (signals by name)."""
+    signals = {
+        **{n: e.u[:, j] for j, n in enumerate(data.inputs)},
+        **{n: e.y[:, j] for j, n in enumerate(data.outputs)},
+    }
+    return term_columns_of(terms, signals, e.n_samples)

@@ -1,12 +1,14 @@
 # Two entry points for a fresh machine with only python3 and make:
 #   make demo   - create .venv, install tendonkit, run the main job
 #   make test   - same set-up, then lint (ruff), type checks (mypy) and the whole test suite
+# For the edit loop:
+#   make check  - lint, type checks and the fast tier (no slow co-simulation, no real data)
 PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-stamp
 
-.PHONY: demo test lint typecheck pytest bench clean
+.PHONY: demo test check lint typecheck pytest pytest-fast bench clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -19,6 +21,8 @@ demo: $(STAMP)
 
 test: $(STAMP) lint typecheck pytest
 
+check: $(STAMP) lint typecheck pytest-fast
+
 lint: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
@@ -26,8 +30,12 @@ lint: $(STAMP)
 typecheck: $(STAMP)
 	$(BIN)/mypy toolkit plugins fmu
 
+# Both cores (pytest-xdist); every test is safe in parallel (tmp_path, atomic caches).
 pytest: $(STAMP)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n auto --durations=15
+
+pytest-fast: $(STAMP)
+	$(BIN)/python -m pytest -q -n auto -m "not slow and not real_data"
 
 bench: $(STAMP)
 	$(BIN)/python -m pip install --quiet -r benchmarks/requirements.txt

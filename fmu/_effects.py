@@ -13,7 +13,7 @@ import numpy as np
 import scipy.linalg
 
 from tendonkit.robot import N_JOINTS, RobotParameters
-from tendonkit.robot.kinematics import gravity_torque
+from tendonkit.robot.kinematics import gravity_torque, rest_inertia
 
 #: Where in the frame the held nonlinear remainder is evaluated, as a fraction of h: the angles
 #: are predicted as q̂ = q + PREDICT·h·q̇ from the state at the frame start.  Spec §9 uses the
@@ -142,7 +142,7 @@ def step_table(
     s_grid = np.arange(S_MIN, S_MAX + 0.5, 1.0)
     g0, k_g = gravity_linearisation(mount, robot)
     k_t_mat = coupling_stiffness(k_t, robot) if k_t > 0 else np.zeros((n, n))
-    m_inv = np.linalg.inv(robot.M0)
+    m_inv = np.linalg.inv(rest_inertia(robot))
     geometric = 0.5 * np.multiply.outer(s_grid, robot.a_mean)  # (N, 6)
     stiff = np.zeros((s_grid.size, n, n))
     stiff[:, np.arange(n), np.arange(n)] = geometric + robot.k_e

@@ -8,6 +8,7 @@ from tendonkit.fmu._config import PlantConfig
 from tendonkit.fmu._effects import coupling_stiffness as _coupling_stiffness
 from tendonkit.fmu._effects import gravity_linearisation as _gravity_linearisation
 from tendonkit.robot import N_JOINTS, N_TENDONS, RobotParameters
+from tendonkit.robot.kinematics import rest_inertia
 
 
 def linearise(
@@ -50,7 +51,7 @@ def linearise(
     stiff = stiff + _gravity_linearisation(config.mount, robot)[1]
     if config.forcelag_on:
         stiff = stiff + _coupling_stiffness(config.forcelag_kt, robot)
-    m_inv = np.linalg.inv(robot.M0)
+    m_inv = np.linalg.inv(rest_inertia(robot))
     a = np.zeros((2 * N_JOINTS, 2 * N_JOINTS))
     a[:N_JOINTS, N_JOINTS:] = np.eye(N_JOINTS)
     a[N_JOINTS:, :N_JOINTS] = -m_inv @ stiff

@@ -13,6 +13,7 @@ import zipfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
+from tendonkit import __version__
 from tendonkit.errors import FMUError
 
 #: SI base-unit exponents of the units our FMUs use (FMI 2.0 ``BaseUnit`` attributes).
@@ -70,7 +71,6 @@ def finalize_model_description(
         entries = {info.filename: zf.read(info.filename) for info in zf.infolist()}
     root = ET.fromstring(entries["modelDescription.xml"])
     root.set("variableNamingConvention", naming)
-    from tendonkit import __version__
 
     root.set("version", __version__)
     cosim = root.find("CoSimulation")

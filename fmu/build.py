@@ -31,8 +31,9 @@ from typing import Any
 from tendonkit.errors import FMUError, OptionError, raise_if
 from tendonkit.fmu._config import PRESETS, PlantConfig, config_from_dict, config_to_dict
 from tendonkit.fmu._model_description import UNIT_BASES, finalize_model_description
-from tendonkit.robot import RobotParameters
+from tendonkit.robot import PAPER_RATIOS, RobotParameters
 from tendonkit.schema import Model
+from tendonkit.stepper import feedthrough
 
 __all__ = [
     "EFFECT_SWITCHES",
@@ -213,6 +214,7 @@ def build_plant_fmu(
     >>> out.suffix
     '.fmu'
     """
+    # lazy: heavy (pythonfmu, through the slave module)
     from tendonkit.fmu import plant_fmu as slave
 
     params = config_to_dict(config or PlantConfig(), robot)
@@ -249,6 +251,7 @@ def cached_plant_fmu(
     Path
         The cached FMU, keyed by the parameters, the slave source and the pythonfmu version.
     """
+    # lazy: heavy (pythonfmu)
     import pythonfmu
 
     config, robot = config_from_dict(dict(parameters or {}))
@@ -292,6 +295,7 @@ def _build(
     naming: str = "structured",
 ) -> Path:
     """Run pythonfmu on a private copy of ``script`` and finalise the model description."""
+    # lazy: heavy (pythonfmu)
     from pythonfmu.builder import FmuBuilder
 
     path = Path(path)
@@ -355,6 +359,7 @@ def model_fmu_problems(model: Model, kinematics: bool = True) -> list[str]:
     -------
     list of str
     """
+    # lazy: heavy (pythonfmu, through the slave module)
     from tendonkit.fmu.model_fmu import EE, JOINTS, RATIO_NAMES
 
     problems = []
@@ -410,9 +415,8 @@ def build_model_fmu(
     OptionError
         The model cannot be exported as asked (every reason listed).
     """
+    # lazy: heavy (pythonfmu, through the slave module)
     from tendonkit.fmu import model_fmu as slave
-    from tendonkit.robot import PAPER_RATIOS
-    from tendonkit.stepper import feedthrough
 
     problems = model_fmu_problems(model, kinematics)
     r = tuple(float(x) for x in (ratios if ratios is not None else PAPER_RATIOS[2:]))
@@ -453,6 +457,7 @@ def _add_kinematic_dependencies(
     table: dict[str, list[str]], inputs: Sequence[str], with_ratios: bool
 ) -> None:
     """Dependencies of q3..q6 (one ratio times q1 or q2) and of the end effector (all)."""
+    # lazy: heavy (pythonfmu, through the slave module)
     from tendonkit.fmu.model_fmu import EE, RATIO_NAMES
 
     pan, tilt = table["q1"], table["q2"]

@@ -29,6 +29,7 @@ from numpy.typing import NDArray
 from tendonkit.dataset import Dataset
 from tendonkit.errors import OptionError
 from tendonkit.schema import ARX, Model
+from tendonkit.simulate import aligned, simulate
 
 FloatArray = NDArray[np.float64]
 
@@ -130,16 +131,15 @@ def refine_output_error(
     OptionError
         If the model is not ARX.
     """
+    # lazy: heavy (scipy)
     from scipy.optimize import least_squares
-
-    from tendonkit.simulate import _aligned, simulate
 
     rep = model.representation
     if not isinstance(rep, ARX):
         raise OptionError(
             f"output-error refinement needs an ARX model, found {type(rep).__name__}."
         )
-    data = _aligned(model, data)
+    data = aligned(model, data)
     theta0, decode = _codec(rep, model.output_names)
     if theta0.size == 0:
         return model

@@ -34,11 +34,20 @@ import numpy as np
 from numpy.typing import NDArray
 
 from tendonkit.dataset import Dataset
-from tendonkit.errors import OptionError
+from tendonkit.errors import DataError, OptionError
 from tendonkit.hookspecs import hookimpl
-from tendonkit.identification import build_model, one_blas_thread, require_samples
+from tendonkit.identification import (
+    build_model,
+    one_blas_thread,
+    require_samples,
+    training_fit,
+    without_training_fit,
+)
+from tendonkit.plugins._output_error import refine_output_error
+from tendonkit.regression import scaled_lstsq, term_columns
 from tendonkit.schema import ARX as ARXRep
 from tendonkit.schema import Model
+from tendonkit.simulate import simulate
 from tendonkit.terms import Factor, Term
 
 FloatArray = NDArray[np.float64]
@@ -133,16 +142,12 @@ class ARX:
         require_samples(dataset, lag + 1, f"arx(na={self.na}, nb={self.nb}, nk={self.nk})")
         rows = sum(e.n_samples - lag for e in dataset.experiments)
         if rows < n_par:
-            from tendonkit.errors import DataError
-
             raise DataError(
                 f"Too few samples for arx: {rows} regression rows for {n_par} parameters per output."
             )
         with one_blas_thread():
             if self.criterion == "equation":
                 return self._fit(dataset, nb, nk, lag)
-            from tendonkit.identification import without_training_fit
-            from tendonkit.plugins._output_error import refine_output_error
 
             with without_training_fit():
                 start = self._output_error_start(dataset, nb, nk, lag)
@@ -158,8 +163,6 @@ class ARX:
         Y = np.vstack([e.y[lag:] for e in dataset.experiments])
         terms = bilinear_terms(dataset, nk) if self.bilinear else ()
         if terms:
-            from tendonkit.regression import term_columns
-
             Phi = np.hstack(
                 [
                     Phi,
@@ -200,8 +203,6 @@ class ARX:
         simulation, then the first IV model's (two steps of the iterative IV). The start with
         the smallest simulation error on the training data is returned.
         """
-        from tendonkit.identification import training_fit
-        from tendonkit.simulate import simulate
 
         def mean_fit(m: Model, data: Dataset) -> float:
             f = np.mean(list(training_fit(m, data).values()))
@@ -273,7 +274,6 @@ def _regressors(
 
 def _solve(Phi: FloatArray, Y: FloatArray, ridge: float) -> FloatArray:
     """Scaled, QR-reduced least squares (:func:`tendonkit.diagnose.extend.scaled_lstsq`)."""
-    from tendonkit.regression import scaled_lstsq
 
     return scaled_lstsq(Phi, Y, ridge)
 

@@ -20,11 +20,19 @@ from typing import Any
 import numpy as np
 
 from tendonkit.dataset import Dataset, Experiment
-from tendonkit.diagnose import Context, Extension
-from tendonkit.diagnose.extend import drop_samples, refit_with_input_blocks
-from tendonkit.diagnose.residuals import ResidualAnalysis
+from tendonkit.diagnose import (
+    Context,
+    Extension,
+    ResidualAnalysis,
+    atom_test,
+    drop_samples,
+    refit_with_input_blocks,
+    simulate_all,
+)
 from tendonkit.hookspecs import hookimpl
+from tendonkit.metrics import fit
 from tendonkit.schema import ARX, Block, Model
+from tendonkit.simulate import aligned, play_operator, simulate_dataset
 from tendonkit.terms import Factor, Term
 
 
@@ -367,16 +375,12 @@ class Saturation:
 
         A clipped output is seen in the data, not only inferred from a better fit: the samples
         stay at the limit while the baseline's simulation (the output without a clip) moves
-        (:func:`tendonkit.diagnose.stats.atom_test`).  The test is made on the *validation* output at
+        (:func:`tendonkit.diagnose.clip.atom_test`).  The test is made on the *validation* output at
         the level chosen on the training data; with two clipped ends, each must be seen (the
         larger p-value).  Only for a clip added to the baseline's dynamics, which leaves the
         simulation unchanged until the clip acts, so that the gain is the clip's.  Input clips
         are not seen in the outputs: None.
         """
-        from tendonkit.diagnose.engine import _simulate_all
-        from tendonkit.diagnose.stats import atom_test
-        from tendonkit.metrics import fit
-        from tendonkit.simulate import _aligned
 
         params = ext.params
         names = ctx.baseline.output_names
@@ -390,9 +394,9 @@ class Saturation:
         if not ends:
             return None
         j = list(names).index(params["signal"])
-        data = _aligned(ctx.baseline, valid)
+        data = aligned(ctx.baseline, valid)
         y = data.y[:, j]
-        free = _simulate_all(ctx.baseline, valid)[:, j]
+        free = simulate_all(ctx.baseline, valid)[:, j]
         judge = float(fit(y[:, None], free[:, None])[0])
         tests = [
             atom_test(y, level, side, reference=free, reference_fit=judge, u=data.u).to_dict()
@@ -409,7 +413,7 @@ class Saturation:
         return {
             "statistic": "validation output samples at the clip level while the baseline's "
             "simulation and the inputs move, Poisson tail against the most a peak or a held level would put "
-            "there (tendonkit.diagnose.stats.atom_test); every clipped end must be seen",
+            "there (tendonkit.diagnose.clip.atom_test); every clipped end must be seen",
             "summary": f"{params['signal']}: {said}",
             "signal": params["signal"],
             "tests": tests,
@@ -529,9 +533,8 @@ def _fit_output_play(ctx: Context, data: Dataset, widths: np.ndarray, refinement
     current model's own simulation, ``c = (x̂ - play(x̂)) / w`` (which also ramps through the
     gap instead of jumping).  Each pass re-runs the baseline identifier on ``x``.
     """
-    from tendonkit.simulate import _aligned, play_operator, simulate_dataset
 
-    data = _aligned(ctx.baseline, data)
+    data = aligned(ctx.baseline, data)
     model = ctx.baseline
     safe = np.where(widths > 0, widths, 1.0)
     for it in range(refinements + 1):

@@ -19,9 +19,13 @@ from typing import Any
 import numpy as np
 
 from tendonkit.dataset import Dataset
-from tendonkit.diagnose import Context, Extension
-from tendonkit.diagnose.extend import extend_with_terms, refit_with_input_blocks
-from tendonkit.diagnose.residuals import ResidualAnalysis
+from tendonkit.diagnose import (
+    Context,
+    Extension,
+    ResidualAnalysis,
+    extend_with_terms,
+    refit_with_input_blocks,
+)
 from tendonkit.hookspecs import hookimpl
 from tendonkit.schema import Block, Model
 from tendonkit.terms import Factor, Term

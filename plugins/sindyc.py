@@ -218,6 +218,7 @@ class SINDYc:
         return dataset.split(1.0 - f)
 
     def _optimizer(self, lam: float, initial_guess: FloatArray | None = None) -> Any:
+        # lazy: heavy (pysindy)
         import pysindy as ps
 
         return ps.STLSQ(
@@ -229,6 +230,7 @@ class SINDYc:
 
     def _pysindy_fit(self, data: Dataset, norm: _Normalisation, lam: float) -> Any:
         """Fit ``ps.DiscreteSINDy`` on the normalised experiments, one trajectory each."""
+        # lazy: heavy (pysindy)
         import pysindy as ps
 
         xs = [norm.states(e.y) for e in data.experiments]
@@ -346,6 +348,7 @@ def library_terms(
 
 def _library(nx: int, nu: int, degree: int, sin: bool) -> Any:
     """The pysindy feature library matching :func:`library_terms`."""
+    # lazy: heavy (pysindy)
     import pysindy as ps
 
     poly = ps.PolynomialLibrary(degree=degree, include_bias=True)
@@ -362,6 +365,7 @@ def library_matrix(data: Dataset, norm: _Normalisation, degree: int, sin: bool) 
 
     These are the rows ``DiscreteSINDy.fit`` regresses on (states then inputs, normalised).
     """
+    # lazy: heavy (pysindy)
     from pysindy.utils import AxesArray, comprehend_axes
 
     xs = []

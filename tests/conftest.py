@@ -17,6 +17,13 @@ SHARED = Path(os.environ.get("TENDONKIT_SHARED", Path(__file__).resolve().parent
 REAL_DATA = SHARED / "data" / "real"
 
 
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Tests that read the real benchmark data are marked ``real_data`` (``make check`` skips them)."""
+    for item in items:
+        if "real_data" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.real_data)
+
+
 @pytest.fixture
 def real_data() -> Path:
     """The real benchmark data folder; a clear failure when it is not there."""

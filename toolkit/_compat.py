@@ -21,8 +21,8 @@ import warnings
 from types import ModuleType
 from typing import Any
 
-#: Old module path -> new module path.
-MOVED_MODULES: dict[str, str] = {
+#: Old module path -> new module path (or paths, searched in order, where a module was split).
+MOVED_MODULES: dict[str, str | tuple[str, ...]] = {
     "tendonkit.augment": "tendonkit.diagnose.extend",
     "tendonkit.cli_mpc": "tendonkit.cli.mpc",
     "tendonkit.cli_robot": "tendonkit.cli.robot",
@@ -38,7 +38,7 @@ MOVED_MODULES: dict[str, str] = {
     "tendonkit.reconstruct": "tendonkit.robot.reconstruct",
     "tendonkit.refine": "tendonkit.plugins._output_error",
     "tendonkit.residuals": "tendonkit.diagnose.residuals",
-    "tendonkit.stats": "tendonkit.diagnose.stats",
+    "tendonkit.stats": ("tendonkit.diagnose.stats", "tendonkit.diagnose.clip"),
 }
 
 #: Names that left a module whose path now belongs to another module: (old module, name) -> new
@@ -46,6 +46,12 @@ MOVED_MODULES: dict[str, str] = {
 MOVED_NAMES: dict[tuple[str, str], str] = {
     ("tendonkit.figures", name): "tendonkit.robot.figures"
     for name in ("ee_path_figure", "fig2", "joint_angle_figure", "plot_tracking")
+}
+
+
+#: Attributes that left a class: (class name, attribute) -> (module, function of the instance).
+MOVED_ATTRIBUTES: dict[tuple[str, str], tuple[str, str]] = {
+    ("RobotParameters", "M0"): ("tendonkit.robot.kinematics", "rest_inertia"),
 }
 
 
@@ -66,6 +72,17 @@ def moved_name(module: str, name: str) -> Any:
     return getattr(importlib.import_module(new), name)
 
 
+def moved_attribute(obj: Any, name: str) -> Any:
+    """Instance ``__getattr__`` helper: an attribute that became a function, with a warning."""
+    cls = type(obj).__name__
+    new = MOVED_ATTRIBUTES.get((cls, name))
+    if new is None:
+        raise AttributeError(f"{cls!r} object has no attribute {name!r}")
+    module, func = new
+    _warn(f"{cls}.{name}", f"{module}.{func}({cls.lower()})")
+    return getattr(importlib.import_module(module), func)(obj)
+
+
 class _Shim(importlib.abc.MetaPathFinder, importlib.abc.Loader):
     """Finder and loader of the old module paths: thin modules forwarding to the new ones."""
 
@@ -79,15 +96,19 @@ class _Shim(importlib.abc.MetaPathFinder, importlib.abc.Loader):
 
     def exec_module(self, module: ModuleType) -> None:
         new = MOVED_MODULES[module.__name__]
-        _warn(module.__name__, new)
-        target = importlib.import_module(new)
+        homes = (new,) if isinstance(new, str) else new
+        _warn(module.__name__, " and ".join(homes))
+        targets = [importlib.import_module(h) for h in homes]
 
         def forward(name: str) -> Any:
-            return getattr(target, name)
+            for target in targets:
+                if hasattr(target, name):
+                    return getattr(target, name)
+            raise AttributeError(f"module {module.__name__!r} has no attribute {name!r}")
 
         module.__getattr__ = forward  # type: ignore[method-assign]
-        module.__doc__ = f"Deprecated alias of {new}."
-        module.__dict__["__all__"] = list(getattr(target, "__all__", ()))
+        module.__doc__ = f"Deprecated alias of {' and '.join(homes)}."
+        module.__dict__["__all__"] = [n for t in targets for n in getattr(t, "__all__", ())]
 
 
 def install() -> None:

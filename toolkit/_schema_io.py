@@ -1,4 +1,8 @@
-"""Strict parsing of model files into :class:`~tendonkit.schema.Model` (no code is evaluated)."""
+"""Strict parsing of model files into the fields of :class:`~tendonkit.schema.Model` (no code is evaluated).
+
+:meth:`tendonkit.schema.Model.from_dict` builds the model from :func:`model_fields`, so this module
+needs only the model's parts (:mod:`tendonkit._representations`), never the schema itself.
+"""
 
 from __future__ import annotations
 
@@ -6,17 +10,16 @@ from typing import Any
 
 import numpy as np
 
-from .errors import SchemaError
-from .schema import (
+from ._representations import (
     ARX,
     SCHEMA_VERSION,
     Block,
-    Model,
     Provenance,
     Signal,
     SparseMap,
     StateSpace,
 )
+from .errors import SchemaError
 from .terms import Term, term_from_dict
 
 _TOP_KEYS = {
@@ -38,8 +41,8 @@ _REP_KEYS = {
 }
 
 
-def model_from_dict(data: Any, source: str = "model") -> Model:
-    """Validate plain data and build a :class:`Model`; every problem is reported at once."""
+def model_fields(data: Any, source: str = "model") -> dict[str, Any]:
+    """Validate plain data into the keyword arguments of ``Model``; every problem at once."""
     p: list[str] = []
     if not isinstance(data, dict):
         raise SchemaError(f"{source}: expected a JSON object, found {type(data).__name__}.")
@@ -70,20 +73,17 @@ def model_from_dict(data: Any, source: str = "model") -> Model:
     prov = _provenance(data.get("provenance", {}), p)
     if p or rep is None:
         raise SchemaError(f"{source} is not a valid tendonkit model:", p or ["bad representation"])
-    try:
-        return Model(
-            name=name,
-            dt=float(dt),  # type: ignore[arg-type]
-            inputs=inputs,
-            outputs=outputs,
-            states=states,
-            representation=rep,
-            input_blocks=in_blocks,
-            output_blocks=out_blocks,
-            provenance=prov,
-        )
-    except SchemaError as exc:
-        raise SchemaError(f"{source} is not a valid tendonkit model:", exc.problems) from None
+    return {
+        "name": name,
+        "dt": float(dt),  # type: ignore[arg-type]
+        "inputs": inputs,
+        "outputs": outputs,
+        "states": states,
+        "representation": rep,
+        "input_blocks": in_blocks,
+        "output_blocks": out_blocks,
+        "provenance": prov,
+    }
 
 
 def _signals(raw: Any, where: str, p: list[str]) -> tuple[Signal, ...]:

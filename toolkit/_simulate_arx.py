@@ -8,32 +8,27 @@ coefficients of the recursion, so only the other terms are evaluated step by ste
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+import dataclasses
 
 import numpy as np
 from numpy.typing import NDArray
 
+from ._response import Initial, ss_response
 from .errors import DataError
+from .realize import arx_lag_matrices, arx_to_state_space
 from .schema import ARX, Model
-from .terms import CompiledTerms, Factor, Term
+from .terms import CompiledTerms, Factor, Term, scalar_evaluator, series_getter
 
 FloatArray = NDArray[np.float64]
-
-if TYPE_CHECKING:
-    from .simulate import Initial
 
 
 def arx_max_lag(rep: ARX, nu: int) -> int:
     """Number of samples of history an ARX model needs."""
-    from .realize import arx_lag_matrices
-
     L = len(arx_lag_matrices(rep, nu)) - 1
     return max(rep.na, L, max((t.max_lag for t in rep.terms), default=0), 1)
 
 
 def _arx_parts(model: Model, rep: ARX) -> tuple[FloatArray, list[FloatArray], FloatArray]:
-    from .realize import arx_lag_matrices
-
     ny, nu = len(model.outputs), len(model.inputs)
     Acat = np.hstack(rep.A) if rep.A else np.zeros((ny, 0))
     G = arx_lag_matrices(rep, nu) if rep.B else [np.zeros((ny, nu))]
@@ -74,6 +69,7 @@ def _sim_arx(
     coef = rep.term_coefficients
     if (ct is None or coef is None) and ny == 1 and start < N:
         # Single output: the recursion is an IIR filter of the input contribution (C speed).
+        # lazy: heavy (scipy.signal)
         from scipy.signal import lfilter, lfiltic
 
         a = np.concatenate([[1.0], [float(Ai[0, 0]) for Ai in rep.A]])
@@ -94,8 +90,6 @@ def _sim_arx(
     # Nonlinear terms.  Terms of inputs only are known for every sample in advance; terms
     # affine in one past output (an input-dependent gain, e.g. bilinear u·y) make the
     # recursion linear with time-varying coefficients; only the rest are evaluated per step.
-    from .terms import scalar_evaluator
-
     M, forced, general, gcoef = _time_varying_part(model, rep, U, forced, L, N, coef)
     width = M.shape[2] // ny
     ct = CompiledTerms(general) if general else None
@@ -141,8 +135,6 @@ def _time_varying_part(
     [y[k-1]; …; y[k-width]] + general terms``, the input contribution including the terms of
     inputs only, and the remaining (general) terms with their coefficients.
     """
-    from .terms import series_getter
-
     ny = len(model.outputs)
     inputs, outputs = set(model.input_names), list(model.output_names)
     getter = series_getter({n: U[:, j] for j, n in enumerate(model.input_names)})
@@ -189,10 +181,6 @@ def _arx_block(
     The offset enters as one more input that is always 1; the realisation's initial state is
     the history held in the padded buffers ``U`` and ``Y`` (``L`` samples before t = 0).
     """
-    import dataclasses
-
-    from .realize import arx_to_state_space
-
     ny, nu = Y.shape[1], U.shape[1]
     B = tuple(np.hstack([b, np.zeros((ny, 1))]) for b in rep.B) or (np.zeros((ny, nu + 1)),)
     lin = dataclasses.replace(
@@ -213,6 +201,4 @@ def _arx_block(
         if ss.A.shape[0]
         else np.zeros(0)
     )
-    from .simulate import ss_response
-
     return ss_response(ss.A, ss.B, ss.C, ss.D, Ua[kk : L + N], x0)

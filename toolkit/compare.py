@@ -1,12 +1,13 @@
 """Compare models on data: fit per output and mean (the paper's Table I), optionally more.
 
 The result is plain data (JSON-ready): one entry per model with its fit per output, the mean
-fit, and, when asked, the fits of the reconstructed joints and the end-effector error.
+fit, and whatever an application adds per model through ``extras`` (the robot adds the fits of
+the reconstructed joints and the end-effector error: :func:`tendonkit.robot.reconstruct.joint_extras`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -14,10 +15,14 @@ import numpy as np
 
 from .dataset import Dataset
 from .errors import DataError
+from .figures import plot_outputs
 from .metrics import FitRow, fit, fit_table
 from .predict import predict
 from .schema import Model
-from .simulate import simulate
+from .simulate import aligned, simulate
+
+#: Per-model additions to a row of :func:`compare`: ``(model, data, sims, name) -> dict``.
+RowExtras = Callable[[Model, Dataset, list[np.ndarray], str], dict[str, Any]]
 
 
 def score(
@@ -27,9 +32,7 @@ def score(
 
     Returns the fits and the simulated (or k-step predicted) outputs per experiment.
     """
-    from .simulate import _aligned
-
-    data = _aligned(model, data)
+    data = aligned(model, data)
     sims = []
     for e in data.experiments:
         if k is None:
@@ -47,12 +50,15 @@ def compare(
     names: Sequence[str] | None = None,
     initial: str = "estimate",
     k: int | None = None,
-    joints: bool = False,
-    ee: bool = False,
     time: str = "t",
     plot_dir: str | Path | None = None,
+    extras: RowExtras | None = None,
 ) -> dict[str, Any]:
-    """Score every model on the data; see the module docstring for the result's layout."""
+    """Score every model on the data; see the module docstring for the result's layout.
+
+    ``plot_dir`` draws measured against simulated outputs (one PNG); ``extras`` adds entries to
+    each model's row from its simulation (e.g. reconstructed joints, with figures of their own).
+    """
     names = list(names) if names is not None else [m.name for m in models]
     rows: list[dict[str, Any]] = []
     problems: list[str] = []
@@ -74,14 +80,8 @@ def compare(
             "fit": fits,
             "mean_fit": float(np.mean(list(fits.values()))),
         }
-        if joints or ee or plot_dir:
-            from .robot.reconstruct import joint_report
-
-            row.update(
-                joint_report(
-                    model, data, sims, joints=joints, ee=ee, plot_dir=plot_dir, name=str(name)
-                )
-            )
+        if extras is not None:
+            row.update(extras(model, data, sims, str(name)))
         rows.append(row)
     if problems:
         raise DataError("The data do not fit the models:", problems)
@@ -126,17 +126,13 @@ def plot_compare(
     initial: str = "estimate",
 ) -> list[str]:
     """Measured vs simulated outputs of every model (one PNG), as :func:`compare` scores them."""
-    from .figures import plot_outputs
-
     sims: dict[str, np.ndarray] = {}
     model0 = models[0]
     for name, model in zip(names, models):
         _, s = score(model, data, initial=initial)
         sims[str(name)] = np.vstack(s)
-    from .simulate import _aligned
-
-    aligned = _aligned(model0, data)
-    t = np.concatenate([e.t for e in aligned.experiments])
+    data0 = aligned(model0, data)
+    t = np.concatenate([e.t for e in data0.experiments])
     units = [s.unit for s in model0.outputs]
-    path = plot_outputs(Path(plot_dir), "compare", t, aligned.y, sims, model0.output_names, units)
+    path = plot_outputs(Path(plot_dir), "compare", t, data0.y, sims, model0.output_names, units)
     return [str(path)]

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import csv
 import hashlib
+import io
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -26,6 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .errors import DataError
+from .files import check_input_file
 
 FloatArray = NDArray[np.float64]
 
@@ -319,32 +321,79 @@ def validation_problems(
     return p
 
 
+#: Largest magnitude accepted in data: squares (error energies, fits) must stay finite.
+MAX_MAGNITUDE = 1e150
+
+
+def _decode(raw: bytes, where: str) -> tuple[str | None, str | None]:
+    """CSV bytes as text (UTF-8, with or without BOM, or UTF-16 with a BOM), or a problem."""
+    if raw.startswith((b"\xff\xfe", b"\xfe\xff")):
+        try:
+            return raw.decode("utf-16"), None
+        except UnicodeDecodeError as exc:
+            return None, f"{where}: cannot be read as UTF-16 text ({exc})."
+    if b"\x00" in raw[:4096]:
+        return None, (
+            f"{where}: the file contains NUL bytes — probably UTF-16 without a byte-order mark; "
+            "save it as UTF-8 (or UTF-16 with a BOM)."
+        )
+    try:
+        return raw.decode("utf-8-sig"), None
+    except UnicodeDecodeError as exc:
+        return None, f"{where}: is not UTF-8 text ({exc}); save it as UTF-8."
+
+
+def _rows(numbers: list[int], limit: int = 5) -> str:
+    shown = ", ".join(str(n) for n in numbers[:limit])
+    return shown + (f" and {len(numbers) - limit} more" if len(numbers) > limit else "")
+
+
 def _read_csv(
     path: Path, inputs: list[str], outputs: list[str], time: str, dt_tol: float
 ) -> tuple[Experiment | None, float, list[str]]:
     """Parse one CSV file; never raises for data problems, returns them instead."""
     where = str(path)
-    if not path.exists():
-        return None, 0.0, [f"{where}: the file does not exist."]
+    problems: list[str] = []
+    if not check_input_file(path, problems, what="data file"):
+        return None, 0.0, problems
     try:
-        with path.open(newline="", encoding="utf-8-sig") as fh:
-            reader = csv.reader(fh)
-            header = next(reader, None)
-            rows = list(reader)
-    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raw = path.read_bytes()
+    except OSError as exc:
+        return None, 0.0, [f"{where}: cannot be read ({exc.strerror or exc})."]
+    text, why = _decode(raw, where)
+    if text is None:
+        return None, 0.0, [str(why)]
+    try:
+        reader = csv.reader(io.StringIO(text, newline=""))
+        header = next(reader, None)
+        rows = list(reader)
+    except csv.Error as exc:
         return None, 0.0, [f"{where}: cannot be read as CSV text ({exc})."]
     if not header:
         return None, 0.0, [f"{where}: the file is empty; a header row is expected."]
+    while rows and not any(c.strip() for c in rows[-1]):
+        rows.pop()  # trailing blank lines end many files
     header = [h.strip() for h in header]
     p: list[str] = []
     dup_cols = sorted({h for h in header if header.count(h) > 1})
     if dup_cols:
         p.append(f"{where}: duplicate column names in the header: {dup_cols}.")
     cols = ", ".join(header)
+    if len(header) == 1 and any(s in header[0] for s in (";", "\t", "|")):
+        sep = next(s for s in (";", "\t", "|") if s in header[0])
+        p.append(
+            f"{where}: the header is one column {header[0]!r}: the file seems separated by "
+            f"{sep!r}; tendonkit reads comma-separated values (save it as CSV with ',')."
+        )
+        return None, 0.0, p
     for kind, names in (("time", [time]), ("input", inputs), ("output", outputs)):
         for n in names:
             if n not in header:
-                p.append(f"{where}: {kind} column {n!r} is not in the file. Columns: {cols}.")
+                hint = " (name the time column with --time NAME, or time= in Python)"
+                p.append(
+                    f"{where}: {kind} column {n!r} is not in the file"
+                    f"{hint if kind == 'time' else ''}. Columns: {cols}."
+                )
     requested = [time, *inputs, *outputs]
     dup_req = sorted({n for n in requested if requested.count(n) > 1})
     if dup_req:
@@ -352,12 +401,13 @@ def _read_csv(
     if p:
         return None, 0.0, p
     values = np.full((len(rows), len(header)), np.nan)
+    idx_all = {h: j for j, h in enumerate(header)}
     bad_cells: list[str] = []
-    ragged = 0
+    ragged: list[int] = []
+    blank: list[int] = []
     for i, row in enumerate(rows):
         if len(row) != len(header):
-            if any(c.strip() for c in row):
-                ragged += 1
+            (ragged if any(c.strip() for c in row) else blank).append(i + 2)
             continue
         for j, cell in enumerate(row):
             try:
@@ -368,7 +418,21 @@ def _read_csv(
                 elif header[j] in requested:
                     bad_cells.append("")
     if ragged:
-        p.append(f"{where}: {ragged} rows do not have {len(header)} fields.")
+        p.append(
+            f"{where}: {len(ragged)} rows do not have {len(header)} fields (rows {_rows(ragged)})."
+        )
+    if blank:
+        p.append(f"{where}: blank lines inside the data (rows {_rows(blank)}).")
+    for h in requested:
+        if h in idx_all:
+            col = values[:, idx_all[h]]
+            huge = np.flatnonzero(np.isfinite(col) & (np.abs(col) > MAX_MAGNITUDE))
+            if huge.size:
+                p.append(
+                    f"{where}: column {h!r} has values beyond ±{MAX_MAGNITUDE:g} (row "
+                    f"{_rows([int(k) + 2 for k in huge])}): a corrupt sample? Their squares "
+                    "overflow double precision."
+                )
     shown = [c for c in bad_cells if c]
     if bad_cells:
         more = f" (and {len(bad_cells) - len(shown)} more)" if len(bad_cells) > len(shown) else ""
@@ -415,9 +479,22 @@ def _read_csv(
 
 
 def write_csv(path: str | Path, columns: dict[str, FloatArray]) -> Path:
-    """Write named columns (equal length) as CSV with full float precision."""
+    """Write named columns (equal length) as CSV with full float precision.
+
+    Raises
+    ------
+    DataError
+        A column name that a CSV header cannot hold unquoted (a separator, a quote, a control
+        character, or an empty name).
+    """
     path = Path(path)
     names = list(columns)
+    bad = [n for n in names if not n or any(c in n for c in ",\"'") or not n.isprintable()]
+    if bad:
+        raise DataError(
+            "Column names cannot be written to a CSV header (no separators, quotes or control "
+            f"characters): {', '.join(repr(n) for n in bad)}."
+        )
     data = np.column_stack([np.asarray(columns[n], dtype=float) for n in names])
     with path.open("w", newline="", encoding="utf-8") as fh:
         fh.write(",".join(names) + "\n")

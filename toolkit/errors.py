@@ -45,6 +45,10 @@ class FMUError(TendonkitError, RuntimeError):
     """Building, validating or running an FMU failed."""
 
 
+class OutputError(TendonkitError, OSError):
+    """An output file or folder cannot be written (refused, or the system failed to write it)."""
+
+
 def raise_if(problems: list[str], cls: type[TendonkitError], headline: str) -> None:
     """Raise ``cls`` listing ``problems`` when there are any.
 

@@ -18,9 +18,11 @@ FloatArray = NDArray[np.floating[Any]]
 
 
 def _plt() -> Any:
+    # lazy: heavy (matplotlib)
     import matplotlib
 
     matplotlib.use("Agg")
+    # lazy: heavy (matplotlib)
     import matplotlib.pyplot as plt
 
     return plt
@@ -145,6 +147,7 @@ def plot_ranking(out_dir: Path, findings: Sequence[dict[str, Any]]) -> Path:
     ax.axvline(0, color="black", lw=0.6)
     ax.set_xlabel("validation fit gain [percentage points]")
     ax.set_ylabel("candidate cause")
+    # lazy: heavy (matplotlib)
     from matplotlib.patches import Patch
 
     ax.legend(

@@ -43,10 +43,13 @@ def tendonkit_register_identifiers(registry: IdentifierRegistry) -> None:
 def tendonkit_register_effects(registry: EffectRegistry) -> None:
     """Register physical effects for ``diagnose``.
 
-    Call ``registry.add(effect)`` once per effect.  An effect has a ``cause`` from the fixed
-    vocabulary (:data:`tendonkit.registry.CAUSES`), a ``signature(...)`` test on data and
-    residuals, and an ``extend(...)`` that returns the baseline model extended with the matching
-    structure, its parameters estimated from the training data.  Optionally,
+    Call ``registry.add(effect)`` once per effect.  An effect is any object satisfying the
+    protocol :class:`tendonkit.diagnose.Effect` (module :mod:`tendonkit.diagnose.effect`, the
+    whole contract): a ``name``, a ``cause`` from the fixed vocabulary
+    (:data:`tendonkit.registry.CAUSES`), ``extend(ctx) -> Extension | None`` returning the
+    baseline extended with the matching structure (parameters estimated from the training data
+    in ``ctx``), and ``signature(ctx, baseline, valid, residuals) -> dict``, the evidence shown
+    in the report.  Optionally it also satisfies :class:`tendonkit.diagnose.DirectTest`:
     ``direct_test(ctx, extension, valid)`` tests the signature on the validation data where the
     extension puts it and returns a dict with a ``p_value`` (or None); diagnose then accepts the
     finding on either route, Bonferroni-corrected (``docs/diagnose.md``, *Direct evidence*).

@@ -16,6 +16,7 @@ from .dataset import Dataset
 from .errors import DataError
 from .metrics import fit
 from .schema import Model, Provenance, Representation, Signal
+from .simulate import simulate_dataset
 
 _SKIP_TRAINING_FIT: contextvars.ContextVar[bool] = contextvars.ContextVar(
     "tendonkit_skip_training_fit", default=False
@@ -49,6 +50,7 @@ def one_blas_thread() -> contextlib.AbstractContextManager[object]:
 @functools.cache
 def _threadpools() -> Any:
     """threadpoolctl's view of the loaded BLAS libraries (scanning them costs ~1 ms: once)."""
+    # lazy: heavy (threadpoolctl)
     from threadpoolctl import ThreadpoolController
 
     return ThreadpoolController()
@@ -116,7 +118,6 @@ def build_model(
 
 def training_fit(model: Model, dataset: Dataset) -> dict[str, float]:
     """Free-run fit per output over all experiments of ``dataset`` (initial state estimated)."""
-    from .simulate import simulate_dataset
 
     sims = simulate_dataset(model, dataset, initial="estimate")
     y = np.vstack([e.y for e in dataset.experiments])

@@ -149,6 +149,7 @@ def kalman_gain(
     A: FloatArray, C: FloatArray, Q: FloatArray | None = None, R: FloatArray | None = None
 ) -> FloatArray:
     """Steady-state predictor gain for ``x+ = Ax + w``, ``y = Cx + v`` (unit covariances by default)."""
+    # lazy: heavy (scipy)
     from scipy.linalg import solve_discrete_are
 
     n, ny = A.shape[0], C.shape[0]

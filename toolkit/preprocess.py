@@ -65,6 +65,7 @@ def lowpass(
     Dataset
         A new dataset; the input is not modified.
     """
+    # lazy: heavy (scipy)
     from scipy.signal import butter, sosfiltfilt
 
     nyquist = 0.5 / data.dt

@@ -3,12 +3,16 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ._representations import ARX, StateSpace
+from ._response import delay_taps
 from .errors import SchemaError
-from .schema import ARX, Model, StateSpace
+
+if TYPE_CHECKING:
+    from .schema import Model
 
 
 def arx_lag_matrices(rep: ARX, nu: int) -> list[np.ndarray]:
@@ -62,8 +66,6 @@ def add_input_delays(ss: StateSpace, delays: Sequence[Any]) -> StateSpace:
     ``delays[m]`` is input m's delay in samples (fractional allowed, see
     :func:`tendonkit.simulate.fractional_delay`) or its FIR taps ``v[k] = Σ_i taps[i] u[k-i]``.
     """
-    from .simulate import delay_taps
-
     taps = [
         np.atleast_1d(np.asarray(d, dtype=float)) if np.ndim(d) else delay_taps(float(d))  # type: ignore[arg-type]
         for d in delays
@@ -115,8 +117,6 @@ def to_state_space(model: Model) -> StateSpace:
         ss = arx_to_state_space(rep, nu)
     else:  # pragma: no cover - is_linear excludes it
         raise SchemaError(f"{rep.kind} has no state-space form.")
-    from .simulate import delay_taps
-
     taps = [np.ones(1) for _ in range(nu)]
     for b in model.input_blocks:
         m = model.input_names.index(b.signal)

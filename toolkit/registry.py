@@ -7,9 +7,12 @@ import types
 import typing
 from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Any, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 from .errors import OptionError, PluginError
+
+if TYPE_CHECKING:  # the contract lives with diagnose; the core never imports it at run time
+    from .diagnose.effect import Effect
 
 #: The fixed vocabulary of physical causes ``diagnose`` can name.
 CAUSES: tuple[str, ...] = (
@@ -125,15 +128,19 @@ class IdentifierRegistry:
 
 
 class EffectRegistry:
-    """Effects registered by plugins, by name; each names a cause from :data:`CAUSES`."""
+    """Effects registered by plugins, by name; each names a cause from :data:`CAUSES`.
+
+    An effect is any object satisfying :class:`tendonkit.diagnose.Effect` (``name``, ``cause``,
+    ``extend``, ``signature``; optionally :class:`tendonkit.diagnose.DirectTest`).
+    """
 
     def __init__(self) -> None:
-        self._entries: dict[str, Any] = {}
+        self._entries: dict[str, Effect] = {}
         self._origin: dict[str, str] = {}
         self._current_plugin = "?"
 
-    def add(self, effect: Any) -> None:
-        """Register an effect object with ``name``, ``cause``, ``signature`` and ``extend``."""
+    def add(self, effect: Effect) -> None:
+        """Register an effect (:class:`tendonkit.diagnose.Effect`); every problem is reported."""
         name = getattr(effect, "name", None)
         cause = getattr(effect, "cause", None)
         problems = []
@@ -152,7 +159,7 @@ class EffectRegistry:
         self._entries[name] = effect
         self._origin[name] = self._current_plugin
 
-    def get(self, name: str) -> Any:
+    def get(self, name: str) -> Effect:
         """The effect called ``name``."""
         try:
             return self._entries[name]
@@ -161,7 +168,7 @@ class EffectRegistry:
                 f"Unknown effect {name!r}. Registered: {', '.join(sorted(self._entries))}."
             ) from None
 
-    def __iter__(self) -> Iterator[Any]:
+    def __iter__(self) -> Iterator[Effect]:
         return iter(self._entries[k] for k in sorted(self._entries))
 
     def __len__(self) -> int:

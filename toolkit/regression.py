@@ -28,7 +28,8 @@ def scaled_lstsq(Phi: FloatArray, Y: FloatArray, ridge: float = 0.0) -> FloatArr
     triangular problem is then solved by a rank-revealing SVD solver, which also handles
     exactly collinear regressors.
     """
-    from scipy.linalg import lstsq, qr  # lazy: heavy (scipy)
+    # lazy: heavy (scipy)
+    from scipy.linalg import lstsq, qr
 
     scale = np.linalg.norm(Phi, axis=0)
     scale[scale == 0] = 1.0

@@ -15,19 +15,25 @@ simulated outputs after them.
 
 from __future__ import annotations
 
-import math
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from ._response import (
+    Initial,
+    delay_taps,
+    fractional_delay,
+    split_delay,
+    ss_response,
+)
+from ._simulate_arx import _sim_arx, arx_max_lag
 from .dataset import Dataset
 from .errors import DataError, SimulationError
 from .schema import ARX, Block, Model, SparseMap, StateSpace
-from .terms import CompiledTerms
+from .terms import CompiledTerms, series_getter
 
 FloatArray = NDArray[np.float64]
-Initial = Literal["zero", "model", "estimate"] | FloatArray
 
 
 def apply_block(block: Block, s: FloatArray) -> FloatArray:
@@ -44,6 +50,7 @@ def apply_block(block: Block, s: FloatArray) -> FloatArray:
     if block.kind == "play":
         return play_operator(s, p["width"])
     if block.kind == "first_order_lag":
+        # lazy: heavy (scipy)
         from scipy.signal import lfilter
 
         a = p["pole"]
@@ -52,40 +59,6 @@ def apply_block(block: Block, s: FloatArray) -> FloatArray:
     if block.kind == "rate_limit":
         return rate_limiter(s, p["rate"])
     raise SimulationError(f"Unknown block kind {block.kind!r}.")  # pragma: no cover
-
-
-def split_delay(samples: float) -> tuple[int, float]:
-    """Whole samples ``n`` and fraction ``α`` of a delay (``α`` rounded to 1e-12 to 0 or 1)."""
-    n = math.floor(samples + 1e-12)
-    a = samples - n
-    return n, (0.0 if a < 1e-12 else a)
-
-
-def fractional_delay(s: FloatArray, samples: float) -> FloatArray:
-    """``v[k] = (1-α) s[k-n] + α s[k-n-1]`` (``n``, ``α`` from :func:`split_delay`).
-
-    The signal before the first sample is ``s[0]``.  A fractional delay of a zero-order-held
-    signal, averaged over the frame, is exactly this two-tap filter.
-    """
-    n, a = split_delay(samples)
-    if n == 0 and a == 0:
-        return s.copy()
-    N = len(s)
-    pad = np.concatenate([np.full(n + 1, s[0]), s])
-    out = pad[1 : N + 1].copy()
-    if a:
-        out = (1.0 - a) * out + a * pad[:N]
-    return out
-
-
-def delay_taps(samples: float) -> FloatArray:
-    """FIR taps of a delay block: ``v[k] = Σ_i taps[i] s[k-i]``."""
-    n, a = split_delay(samples)
-    taps = np.zeros(n + (2 if a else 1))
-    taps[n] = 1.0 - a
-    if a:
-        taps[n + 1] = a
-    return taps
 
 
 def rate_limiter(s: FloatArray, rate: float) -> FloatArray:
@@ -215,12 +188,18 @@ def simulate_dataset(
     model: Model, data: Dataset, *, initial: Initial | None = "estimate"
 ) -> list[FloatArray]:
     """Simulate every experiment of ``data`` (inputs selected by the model's input names)."""
-    data = _aligned(model, data)
+    data = aligned(model, data)
     return [simulate(model, e.u, y=e.y, initial=initial) for e in data.experiments]
 
 
-def _aligned(model: Model, data: Dataset) -> Dataset:
-    """The dataset with the model's inputs and outputs in the model's order."""
+def aligned(model: Model, data: Dataset) -> Dataset:
+    """The dataset with the model's inputs and outputs in the model's order.
+
+    Raises
+    ------
+    DataError
+        A signal of the model is not in the data.
+    """
     missing = [n for n in (*model.input_names, *model.output_names) if n not in data.columns]
     if missing:
         raise DataError(
@@ -269,8 +248,6 @@ def _sim_ss(rep: StateSpace, u: FloatArray, y: FloatArray | None, initial: Initi
 
 def ss_theta_measured(model: Model, u: FloatArray, y: FloatArray) -> FloatArray:
     """The terms of a model evaluated on measured signals (series-parallel), shape (n, n_terms)."""
-    from .terms import series_getter
-
     rep = model.representation
     assert isinstance(rep, StateSpace | ARX)
     ct = CompiledTerms(rep.terms)
@@ -313,72 +290,6 @@ def _sim_ss_terms(
             Y[kk + 1 :] = np.nan
             break
     return Y[L:]
-
-
-def ss_response(
-    A: FloatArray, B: FloatArray, C: FloatArray, D: FloatArray, u: FloatArray, x0: FloatArray
-) -> FloatArray:
-    """Outputs of ``x+ = Ax + Bu, y = Cx + Du`` from ``x0``.
-
-    Long records are simulated in blocks of ``L`` samples: inside a block the output is an
-    observability product on the block's start state plus a block-Toeplitz product on its
-    inputs, and only the start states are propagated in a Python loop (``N / L`` iterations).
-    The result equals the sample-by-sample recursion to rounding error.
-    """
-    n, N = A.shape[0], u.shape[0]
-    if N < 512 or n == 0:
-        return _ss_loop(A, B, C, D, u, x0)
-    L = 32 if n > 24 else 64
-    ny, nu = C.shape[0], B.shape[1]
-    # Ob[r] = C A^r (r < L), H[r] = C A^(r-1) B (r >= 1), G[r] = A^(L-1-r) B, AL = A^L
-    Ob = np.empty((L, ny, n))
-    P = np.eye(n)
-    for r in range(L):
-        Ob[r] = C @ P
-        P = A @ P
-    AL = P
-    H = np.zeros((L, ny, nu))
-    Gs = np.empty((L, n, nu))
-    for r in range(1, L):
-        H[r] = Ob[r - 1] @ B
-    powB = B.copy()
-    for r in range(L - 1, -1, -1):
-        Gs[r] = powB
-        powB = A @ powB
-    nb = -(-N // L)
-    up = np.zeros((nb * L, nu))
-    up[:N] = u
-    Ub = up.reshape(nb, L, nu)  # [b, s, j]
-    # forced outputs: Y[b, r] = sum_{s<r} H[r-s] u[b, s]
-    T = np.zeros((L, ny, L, nu))
-    for r in range(1, L):
-        T[r, :, :r, :] = H[r:0:-1].transpose(1, 0, 2)
-    forced = (T.reshape(L * ny, L * nu) @ Ub.reshape(nb, L * nu).T).T.reshape(nb, L, ny)
-    ctrl = Gs.transpose(1, 0, 2).reshape(n, L * nu)
-    xin = (ctrl @ Ub.reshape(nb, L * nu).T).T  # (nb, n): state added by each block's inputs
-    starts = np.empty((nb, n))
-    x = np.asarray(x0, dtype=float).copy()
-    for b in range(nb):
-        starts[b] = x
-        x = AL @ x + xin[b]
-    free = np.einsum("rpn,bn->brp", Ob, starts)
-    Y = (free + forced).reshape(nb * L, ny)[:N]
-    return Y + u @ D.T
-
-
-def _ss_loop(
-    A: FloatArray, B: FloatArray, C: FloatArray, D: FloatArray, u: FloatArray, x0: FloatArray
-) -> FloatArray:
-    """Sample-by-sample recursion (short records and reference for tests)."""
-    n, N = A.shape[0], u.shape[0]
-    X = np.empty((N, n))
-    x = np.asarray(x0, dtype=float).copy()
-    Bu = u @ B.T
-    At = A.T
-    for k in range(N):
-        X[k] = x
-        x = x @ At + Bu[k]
-    return X @ C.T + u @ D.T
 
 
 def estimate_x0(
@@ -441,10 +352,8 @@ def _sim_sparse(
     return X[L:, list(rep.output_states)]
 
 
-# ARX recursions live in their own module; imported last because they use ``ss_response``.
-from ._simulate_arx import _sim_arx, arx_max_lag  # noqa: E402
-
 __all__ = [
+    "aligned",
     "apply_block",
     "arx_max_lag",
     "delay_taps",

@@ -38,8 +38,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .errors import DataError
+from .realize import arx_lag_matrices
 from .schema import ARX, Block, Model, SparseMap, StateSpace
-from .simulate import split_delay
+from .simulate import arx_max_lag, split_delay
 from .terms import CompiledTerms, scalar_evaluator
 
 __all__ = ["Stepper", "feedthrough"]
@@ -157,9 +158,6 @@ class Stepper:
             self._ct = CompiledTerms(rep.terms)
             self._lag = max((t.max_lag for t in rep.terms), default=1)
         elif isinstance(rep, ARX):
-            from .realize import arx_lag_matrices
-            from .simulate import arx_max_lag
-
             self._G = arx_lag_matrices(rep, self.nu) if rep.B else [np.zeros((self.ny, self.nu))]
             self._lag = arx_max_lag(rep, self.nu)
             self._acat = np.hstack(rep.A) if rep.A else np.zeros((self.ny, 0))
@@ -388,8 +386,6 @@ def feedthrough(model: Model, initial: bool = False) -> dict[str, list[str]]:
     if isinstance(rep, StateSpace):
         direct |= rep.D != 0
     elif isinstance(rep, ARX):
-        from .realize import arx_lag_matrices
-
         if rep.B:
             direct |= arx_lag_matrices(rep, nu)[0] != 0
         coef = rep.term_coefficients

@@ -18,6 +18,7 @@ Examples
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -427,7 +428,6 @@ def scalar_evaluator(ct: CompiledTerms) -> Callable[[Sequence[float]], list[floa
     For the few terms of an extended model this is several times faster per step than the
     vectorised :meth:`CompiledTerms.evaluate`, which pays numpy's call overhead.
     """
-    import math
 
     spec = []
     for i, t in enumerate(ct.terms):

@@ -5,7 +5,7 @@ Use them like scikit-learn's ``check_estimator``: run everything at once with
 check is reported on its own::
 
     import pytest
-    from .testing import identifier_checks
+    from tendonkit.testing import identifier_checks
 
     @pytest.mark.parametrize("check", identifier_checks(), ids=lambda c: c.__name__)
     def test_my_identifier(check):
@@ -24,12 +24,14 @@ from typing import Any
 
 import numpy as np
 
+from .compare import compare
 from .dataset import Dataset
 from .errors import DataError, TendonkitError
 from .metrics import fit
 from .predict import predict
 from .schema import Model
 from .simulate import simulate
+from .testsystems import random_state_space, simulate_truth
 
 #: Minimum validation fit (percent) on the easy conformance system; the truth scores ~99.
 MIN_FIT = 50.0
@@ -40,7 +42,6 @@ Check = Callable[[Any], None]
 @functools.cache
 def conformance_data(seed: int = 7) -> tuple[Dataset, Dataset]:
     """Training and validation data of a 2-in, 2-out, order-4 system with 1 % output noise."""
-    from .testsystems import random_state_space, simulate_truth
 
     truth = random_state_space(4, 2, 2, seed=seed, dt=0.05)
     train, _ = simulate_truth(truth, 1500, noise=0.01, seed=seed + 1)
@@ -132,7 +133,6 @@ def check_shape_errors(identifier: Any) -> None:
 
 def check_simulate_and_compare(identifier: Any) -> None:
     """The model simulates and predicts on fresh data, with a validation fit above MIN_FIT."""
-    from .compare import compare
 
     train, valid = conformance_data()
     model = identifier.identify(train)

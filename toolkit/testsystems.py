@@ -85,6 +85,7 @@ def lightly_damped_oscillator(
     biased, which makes it the standard check for output-error estimation and for diagnose's
     baseline check.  Returns the dataset (``force`` → ``pos``) and the true discrete poles.
     """
+    # lazy: heavy (scipy)
     from scipy.signal import butter, cont2discrete, lfilter
 
     rng = np.random.default_rng(seed)

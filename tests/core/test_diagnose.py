@@ -11,7 +11,8 @@ from scipy.signal import lfilter
 
 from tendonkit.dataset import Dataset, Experiment
 from tendonkit.diagnose import diagnose
-from tendonkit.diagnose.stats import atom_test, autocorrelation_time, holm, loss_test
+from tendonkit.diagnose.clip import atom_test
+from tendonkit.diagnose.stats import autocorrelation_time, holm, loss_test
 from tendonkit.errors import OptionError, PluginError
 from tendonkit.testsystems import lightly_damped_oscillator
 

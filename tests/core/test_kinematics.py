@@ -18,6 +18,7 @@ from tendonkit.robot.kinematics import (
     link_jacobians,
     mass_matrix,
     ratio_matrix,
+    rest_inertia,
     scalar_forward_kinematics,
     static_tension_difference,
 )
@@ -53,7 +54,9 @@ def test_stiffness_damping_and_inertia_match_spec():
         ROBOT.damping, [0.120, 0.120, 0.184, 0.186, 0.584, 0.524], atol=0.0006
     )
     np.testing.assert_allclose(
-        np.diag(ROBOT.M0), [9.65e-3, 5.97e-3, 3.37e-3, 1.67e-3, 6.7e-4, 1.8e-4], rtol=0.015
+        np.diag(rest_inertia(ROBOT)),
+        [9.65e-3, 5.97e-3, 3.37e-3, 1.67e-3, 6.7e-4, 1.8e-4],
+        rtol=0.015,
     )  # printed to 2-3 significant digits: 1.8e-4 stands for 1.82e-4
 
 
@@ -161,7 +164,7 @@ def test_mass_matrix_properties():
     assert np.all(m0[np.ix_([0, 2, 4], [1, 3, 5])] == 0)
     mq = mass_matrix(_random_q(5, 4))
     assert np.all(np.linalg.eigvalsh(mq) > 0)
-    np.testing.assert_allclose(ROBOT.M0, m0)
+    np.testing.assert_allclose(rest_inertia(ROBOT), m0)
 
 
 def test_gravity_torque_is_minus_gradient_of_potential():
@@ -224,3 +227,11 @@ def test_static_inverse_and_commands():
     np.testing.assert_allclose(u[:, 0] - u[:, 2], static_tension_difference(q12, P)[:, 0])
     wide = commanded_tensions([[0.7, 0.0]], 105.0)
     assert wide.max() == ROBOT.T_max and wide.min() == ROBOT.T_min
+
+
+def test_M0_of_0_1_still_works_with_a_deprecation_warning():
+    with pytest.warns(DeprecationWarning, match="rest_inertia"):
+        m0 = ROBOT.M0
+    np.testing.assert_array_equal(m0, rest_inertia(ROBOT))
+    with pytest.raises(AttributeError):
+        _ = ROBOT.not_an_attribute

@@ -12,7 +12,13 @@ from tendonkit.dataset import Dataset, Experiment
 from tendonkit.errors import DataError
 from tendonkit.robot.kinematics import forward_kinematics
 from tendonkit.robot.protocol import circles, pseudo_random
-from tendonkit.robot.reconstruct import Ratios, ee_error_cm, estimate_ratios, reconstruct
+from tendonkit.robot.reconstruct import (
+    Ratios,
+    ee_error_cm,
+    estimate_ratios,
+    joint_extras,
+    reconstruct,
+)
 
 fmu_plant = pytest.importorskip("tendonkit.fmu.plant")
 
@@ -92,7 +98,13 @@ def test_compare_reports_joint_fits_and_ee_error(plant_data, tmp_path):
 
     tr, va = plant_data
     model = tk.identify(tr, "arx")
-    res = compare([model], va, names=["arx"], joints=True, ee=True, plot_dir=tmp_path)
+    res = compare(
+        [model],
+        va,
+        names=["arx"],
+        plot_dir=tmp_path,
+        extras=joint_extras(joints=True, ee=True, plot_dir=tmp_path),
+    )
     row = res["models"][0]
     assert set(row["joint_fit"]) == {f"q{i}" for i in range(1, 7)}
     assert row["joint_fit"]["q1"] == pytest.approx(row["fit"]["q1"])  # modelled joints agree
@@ -107,4 +119,8 @@ def test_joint_report_needs_q1_q2_outputs(plant_data):
     tr, va = plant_data
     model = tk.identify(tr.select(["T1", "T2", "T3", "T4"], ["q3", "q4"]), "arx", na=2, nb=2)
     with pytest.raises(DataError, match="outputs named q1 and q2"):
-        compare([model], va.select(["T1", "T2", "T3", "T4"], ["q3", "q4"]), ee=True)
+        compare(
+            [model],
+            va.select(["T1", "T2", "T3", "T4"], ["q3", "q4"]),
+            extras=joint_extras(joints=False, ee=True),
+        )

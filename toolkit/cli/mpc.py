@@ -18,20 +18,32 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ..errors import OptionError, SchemaError
-from .app import check_output_path, raise_problems, write_json
+from ..robot.collect import fmu_parameters
+from ..robot.cosim import (
+    DEFAULTS,
+    REFERENCES,
+    ControllerSettings,
+    controller_kind,
+    make_controller,
+    make_reference,
+    open_loop,
+    plot_tracking,
+    run,
+)
+from .common import check_output_path, load_model, raise_problems, write_json
 
 __all__ = ["add_commands", "cmd_mpc"]
 
 
 def add_commands(sub: Any) -> None:
     """Add the ``mpc`` subcommand to the ``tendonkit`` subparsers."""
-    from ..robot.cosim import REFERENCES
 
     p = sub.add_parser(
         "mpc",
@@ -83,6 +95,7 @@ def add_commands(sub: Any) -> None:
 
 def _plant(args: argparse.Namespace, problems: list[str]) -> tuple[Any, dict[str, Any], Any]:
     """(FMU path or None, parameter overrides, full parameters for the cached plant)."""
+    # lazy: keeps this module off tendonkit.fmu until needed
     from tendonkit.fmu.build import plant_parameters
 
     effects = list(args.effect or [])
@@ -103,7 +116,6 @@ def _plant(args: argparse.Namespace, problems: list[str]) -> tuple[Any, dict[str
             except OptionError as exc:
                 problems.extend(exc.problems or [str(exc)])
             return None, {}, None
-        from ..robot.collect import fmu_parameters
 
         try:
             base = fmu_parameters(args.plant)
@@ -126,11 +138,9 @@ def _plant(args: argparse.Namespace, problems: list[str]) -> tuple[Any, dict[str
 
 def cmd_mpc(args: argparse.Namespace) -> int:
     """Co-simulate the plant with the MPC for a model and report the tracking."""
-    from ..robot.cosim import ControllerSettings, controller_kind, make_reference
-    from .app import _load_model
 
     problems: list[str] = []
-    model = _load_model(args.model, problems)
+    model = load_model(args.model, problems)
     kind = None
     if model is not None:
         try:
@@ -177,11 +187,8 @@ def _run(
     overrides: dict[str, Any],
     params: dict[str, Any] | None,
 ) -> int:
-    import sys
-
+    # lazy: keeps this module off tendonkit.fmu until needed
     from tendonkit.fmu.build import cached_plant_fmu
-
-    from ..robot.cosim import DEFAULTS, make_controller, open_loop, plot_tracking, run
 
     fmu = plant if plant is not None else cached_plant_fmu(params)
     progress = not args.no_progress and sys.stderr.isatty()

@@ -1,4 +1,4 @@
-"""Robot-side subcommands of ``tendonkit``: ``plant build``, ``collect`` and ``export``.
+"""Robot-side subcommands of ``tendonkit``: ``plant build``, ``collect`` and ``demo``.
 
 :func:`add_commands` is called by :func:`tendonkit.cli.app.build_parser`.  The FMU side
 (:mod:`tendonkit.fmu`), fmpy, pythonfmu and matplotlib are imported inside the commands, so
@@ -13,14 +13,29 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from ..errors import DataError, OptionError, SchemaError
-from .app import atomic_write, check_output_path, raise_problems, write_json
+from ..dataset import write_csv
+from ..errors import OptionError, SchemaError
+from ..robot.collect import collect, fmu_parameters
+from ..robot.figures import fig2
+from ..robot.protocol import circles, petal, pseudo_random
+from ..robot.study import run_demo
+from .common import (
+    atomic_write,
+    check_input_file,
+    check_output_dir,
+    check_output_path,
+    output_dirs,
+    positive_float,
+    raise_problems,
+    seed_argument,
+    write_json,
+)
 
 PROTOCOLS = ("circles", "random", "petal")
 
 
 def add_commands(sub: Any) -> None:
-    """Add ``plant build``, ``collect`` and ``export`` to the ``tendonkit`` subparsers."""
+    """Add ``plant build``, ``collect`` and ``demo`` to the ``tendonkit`` subparsers."""
     plant = sub.add_parser("plant", help="the plant FMU (physics simulator of the robot)")
     plant_sub = plant.add_subparsers(
         dest="plant_command", metavar="COMMAND", parser_class=type(plant)
@@ -41,10 +56,12 @@ def add_commands(sub: Any) -> None:
     p.add_argument("--plant", help="plant FMU (default: the nominal plant, built and cached)")
     _effect_arguments(p)
     p.add_argument("--preset", help="base configuration of the default plant (not with --plant)")
-    p.add_argument("--seed", type=int, help="seed of the random protocol and of the sensor noise")
+    p.add_argument(
+        "--seed", type=seed_argument, help="seed of the random protocol and of the sensor noise"
+    )
     p.add_argument(
         "--duration",
-        type=float,
+        type=positive_float,
         help="seconds: length of the random protocol (default 240); circles/petal are cut there",
     )
     p.add_argument(
@@ -52,7 +69,9 @@ def add_commands(sub: Any) -> None:
         nargs="+",
         help="circle radii in cm, e.g. '2 6 12' or '2,6,12' (default 1..12)",
     )
-    p.add_argument("--laps", type=float, help="laps per circle / petal traversals (default 2 / 1)")
+    p.add_argument(
+        "--laps", type=positive_float, help="laps per circle / petal traversals (default 2 / 1)"
+    )
     p.add_argument("-o", "--output", required=True, help="CSV file to write")
     p.add_argument("--plot", help="write the paper's Fig. 2 equivalent (PNG) into this folder")
     p.add_argument("--json", help="also write a JSON summary here")
@@ -61,20 +80,13 @@ def add_commands(sub: Any) -> None:
     )
     p.set_defaults(func=cmd_collect)
 
-    p = sub.add_parser("export", help="export a model as an FMI 2.0 co-simulation FMU")
-    p.add_argument("model", help="model JSON file")
-    p.add_argument("-o", "--output", required=True, help="FMU file to write")
+    p = sub.add_parser("demo", help="run the main job end to end and write a report")
+    p.add_argument("--out", default="demo-report", help="output folder (default: demo-report)")
+    p.add_argument("--quick", action="store_true", help="smaller data, finishes in about a minute")
     p.add_argument(
-        "--ratios",
-        help="JSON file with the joint ratios {q3, q4, q5, q6} (q3/q1, q4/q2, q5/q1, q6/q2; "
-        "the format compare --joints reports estimates in; default: the paper's)",
+        "--seed", type=seed_argument, default=0, help="seed of every random choice (default 0)"
     )
-    p.add_argument(
-        "--no-kinematics",
-        action="store_true",
-        help="export only the modelled outputs (no q3..q6, no end effector)",
-    )
-    p.set_defaults(func=cmd_export)
+    p.set_defaults(func=cmd_demo)
 
 
 def _usage(parser: argparse.ArgumentParser) -> int:
@@ -96,6 +108,8 @@ def _effect_arguments(p: argparse.ArgumentParser) -> None:
 # ------------------------------------------------------------------------------- plant build
 def cmd_plant_build(args: argparse.Namespace) -> int:
     """Build the plant FMU with the requested effects as parameter start values."""
+    # lazy: keeps the CLI off tendonkit.fmu (pythonfmu) until a command needs it
+    # lazy: keeps this module off tendonkit.fmu until needed
     from tendonkit.fmu.build import build_plant_fmu, plant_parameters
     from tendonkit.fmu.plant import config_from_dict
 
@@ -136,13 +150,9 @@ def _radii(items: list[str] | None, problems: list[str]) -> list[float] | None:
 
 
 def _protocol(args: argparse.Namespace, problems: list[str]) -> Any:
-    from ..robot.protocol import circles, petal, pseudo_random
-
     radii = _radii(args.radii, problems)
     if args.radii and args.protocol != "circles":
         problems.append("--radii applies only to --protocol circles.")
-    if args.duration is not None and not (args.duration > 0):
-        problems.append(f"--duration must be > 0 s, found {args.duration}.")
     if args.seed is not None and args.seed < 0:
         problems.append(f"--seed must be >= 0, found {args.seed}.")
     if problems:
@@ -176,24 +186,23 @@ def _truncate(prot: Any, seconds: float) -> Any:
 
 def cmd_collect(args: argparse.Namespace) -> int:
     """Drive the plant FMU with a protocol and write the frames as CSV."""
+    # lazy: keeps the CLI off tendonkit.fmu (pythonfmu) until a command needs it
     from tendonkit.fmu.build import cached_plant_fmu, plant_parameters
-
-    from ..dataset import write_csv
-    from ..robot.collect import collect, fmu_parameters
 
     problems: list[str] = []
     inputs = [args.plant] if args.plant else []
-    check_output_path(args.output, inputs, problems)
+    check_output_path(args.output, inputs, problems, what="-o/--output")
     if args.json:
-        check_output_path(args.json, [*inputs, args.output], problems)
+        check_output_path(args.json, [*inputs, args.output], problems, what="--json")
+    if args.plot:
+        check_output_dir(args.plot, [*inputs, args.output], problems, what="--plot")
     if args.plant and args.preset:
         problems.append("--preset applies to the default plant only; with --plant use --effect.")
-    if args.plant and not Path(args.plant).is_file():
-        problems.append(f"plant FMU {args.plant!r} does not exist.")
+    plant_ok = not args.plant or check_input_file(args.plant, problems, what="plant FMU")
     prot = _protocol(args, problems)
     overrides: dict[str, Any] = {}
     params: dict[str, Any] | None = None
-    if not args.plant or Path(args.plant).is_file():
+    if plant_ok:
         try:
             if args.plant:
                 base = fmu_parameters(args.plant)
@@ -215,9 +224,8 @@ def cmd_collect(args: argparse.Namespace) -> int:
     atomic_write(args.output, lambda p: write_csv(p, rec.columns))
     figures: list[str] = []
     if args.plot:
-        from ..robot.figures import fig2
-
-        figures = [str(p) for p in fig2(rec.columns, args.plot, prot.ee_ref, title=prot.name)]
+        with output_dirs(args.plot):
+            figures = [str(p) for p in fig2(rec.columns, args.plot, prot.ee_ref, title=prot.name)]
     summary = {
         "output": str(args.output),
         "plant": str(plant),
@@ -240,46 +248,13 @@ def cmd_collect(args: argparse.Namespace) -> int:
     return 0
 
 
-# ------------------------------------------------------------------------------- export
-def _read_ratios(path: str, problems: list[str]) -> tuple[float, ...] | None:
-    """The four ratios (r3, r4, r5, r6) of a ratios file in the format of
-    :class:`tendonkit.robot.reconstruct.Ratios` (keys q3, q4, q5, q6 — what ``compare --joints``
-    reports as estimates)."""
-    from ..robot.reconstruct import Ratios
-
-    try:
-        r = Ratios.load(path)
-    except DataError as exc:
-        problems.extend(f"--ratios: {p}" for p in (exc.problems or [str(exc)]))
-        return None
-    bad = [f"{k}={v!r}" for k, v in r.to_dict().items() if not 0 < v <= 1]
-    if bad:
-        problems.append(f"--ratios: ratios must be in (0, 1], found {', '.join(bad)}.")
-        return None
-    return (r.r3, r.r4, r.r5, r.r6)
-
-
-def cmd_export(args: argparse.Namespace) -> int:
-    """Export a model JSON as an FMI 2.0 co-simulation FMU."""
-    from tendonkit.fmu.build import build_model_fmu, model_fmu_problems
-
-    from .app import _load_model
-
+# ------------------------------------------------------------------------------- demo
+def cmd_demo(args: argparse.Namespace) -> int:
+    """Run the main job and write its report."""
+    out = Path(args.out)
     problems: list[str] = []
-    model = _load_model(args.model, problems)
-    check_output_path(args.output, [args.model], problems)
-    if not str(args.output).lower().endswith(".fmu"):
-        problems.append(f"output {args.output!r} must end in .fmu.")
-    ratios = _read_ratios(args.ratios, problems) if args.ratios else None
-    if args.ratios and args.no_kinematics:
-        problems.append("--ratios has no effect with --no-kinematics.")
-    if model is not None:
-        problems.extend(model_fmu_problems(model, kinematics=not args.no_kinematics))
-    raise_problems(problems, "tendonkit export cannot run:")
-    path = build_model_fmu(model, args.output, ratios=ratios, kinematics=not args.no_kinematics)
-    what = "modelled outputs only" if args.no_kinematics else "q1..q6 and the end effector"
-    print(
-        f"{model.kind} model {model.name!r} exported to {path} "
-        f"(FMI 2.0 co-simulation, step {model.dt:g} s, {what})"
-    )
+    if out.exists() and not out.is_dir():
+        problems.append(f"--out {str(out)!r} exists and is not a folder.")
+    raise_problems(problems, "tendonkit demo cannot run:")
+    run_demo(out, quick=args.quick, seed=args.seed)
     return 0

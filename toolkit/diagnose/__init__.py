@@ -1,40 +1,62 @@
 """Find what a model's simulation gets wrong, name the cause, extend the model, measure the gain.
 
-The door of the diagnose room: :func:`diagnose` and its results (:class:`Diagnosis`,
-:class:`Finding`), and what an effect plugin receives (:class:`Context`) and returns
-(:class:`Extension`).  The modules behind it: ``engine`` (the procedure), ``residuals`` (what
-the errors show), ``stats`` (the tests), ``extend`` (refitting a model with added terms or
-blocks), ``findings`` (results and ties) and ``report`` (the HTML report).
+The door of the diagnose room.  For users: :func:`diagnose` and its results (:class:`Diagnosis`,
+:class:`Finding`).  For effect plugins: the contract (:class:`Effect`, the optional
+:class:`DirectTest`, the :class:`Context` an effect receives and the :class:`Extension` it
+returns) and the tools built-in effects use to build and check extensions (refits with added
+terms or blocks, the residual analysis, the clip detector, simulation of a whole dataset).
+
+Behind the door: ``engine`` (the procedure), ``effect`` (the contract), ``residuals`` (what the
+errors show), ``stats`` (the loss test and Holm), ``clip`` (the clip detector), ``extend``
+(refitting a model with added terms or blocks), ``findings`` (results and ties) and ``report``
+(the HTML report).
 """
 
 from __future__ import annotations
 
-from .engine import (
-    BIAS_RATIO,
-    DEFAULT_EXPERIMENT,
-    DISCRIMINATING,
+from .clip import AtomTest, atom_test
+from .effect import (
     Context,
-    Diagnosis,
+    DirectTest,
+    Effect,
     Extension,
-    Finding,
     added_parameters,
-    check_baseline,
-    diagnose,
     mean_fit,
-    params_of,
+    simulate_all,
 )
+from .engine import BIAS_RATIO, check_baseline, diagnose, params_of
+from .extend import (
+    drop_samples,
+    extend_with_terms,
+    refit_with_input_blocks,
+    transform_inputs,
+    transform_outputs,
+)
+from .findings import DEFAULT_EXPERIMENT, DISCRIMINATING, Diagnosis, Finding
+from .residuals import ResidualAnalysis
 
 __all__ = [
     "BIAS_RATIO",
     "DEFAULT_EXPERIMENT",
     "DISCRIMINATING",
+    "AtomTest",
     "Context",
     "Diagnosis",
+    "DirectTest",
+    "Effect",
     "Extension",
     "Finding",
+    "ResidualAnalysis",
     "added_parameters",
+    "atom_test",
     "check_baseline",
     "diagnose",
+    "drop_samples",
+    "extend_with_terms",
     "mean_fit",
     "params_of",
+    "refit_with_input_blocks",
+    "simulate_all",
+    "transform_inputs",
+    "transform_outputs",
 ]

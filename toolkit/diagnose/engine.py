@@ -27,7 +27,7 @@ The procedure, for any registered identifier as the baseline and any registered 
    never names a cause: without structure the batch log-ratios scatter around
    ``log(1 - δ) < 0``.  An effect may also test its signature directly on the validation
    data (``direct_test``: a clipped output piles up at its level,
-   :func:`tendonkit.diagnose.stats.atom_test`); the finding's p-value is then the Bonferroni
+   :func:`tendonkit.diagnose.clip.atom_test`); the finding's p-value is then the Bonferroni
    combination ``2·min(p_loss, p_direct)`` of the two routes.
 6. **Naming.** The significant finding with the largest gain names the cause; with none the
    cause is ``none``.  Parsimony breaks ties: a significant finding with fewer added
@@ -42,151 +42,39 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from ..dataset import Dataset
-from ..errors import OptionError
+from ..errors import OptionError, PluginError, TendonkitError
+from ..identification import training_fit
+from ..manager import effects as effect_registry
+from ..manager import identifiers
 from ..metrics import fit
 from ..schema import Model
-from ..simulate import _aligned, simulate
+from ..simulate import aligned
+from .effect import (
+    Context,
+    DirectTest,
+    Effect,
+    Extension,
+    added_parameters,
+    mean_fit,
+    simulate_all,
+)
 from .findings import (
-    DEFAULT_EXPERIMENT,
-    DISCRIMINATING,
     Diagnosis,
     Finding,
     _ambiguity,
     _mean,
 )
-from .residuals import ResidualAnalysis, analyse
+from .residuals import analyse
 from .stats import holm, loss_test
 
 FloatArray = NDArray[np.float64]
-
-# -- what effects receive -------------------------------------------------------------------------
-
-
-@dataclass
-class Context:
-    """What an effect gets to build its extension: training data only, never validation data.
-
-    Attributes
-    ----------
-    train : Dataset
-        All training data.
-    baseline : Model
-        The baseline identified on ``train``.
-    identifier : object
-        The baseline's identifier options object (``identify(dataset) -> Model``).
-    residuals : ResidualAnalysis
-        The baseline analysed on ``train``.
-    """
-
-    train: Dataset
-    baseline: Model
-    identifier: Any
-    residuals: ResidualAnalysis
-    seed: int = 0
-    _cache: dict[str, Any] = field(default_factory=dict)
-
-    def refit(self, data: Dataset) -> Model:
-        """Identify with the baseline's identifier and options on ``data`` (no training fit)."""
-        from ..identification import without_training_fit
-
-        with without_training_fit():
-            return self.identifier.identify(data)
-
-    def score(self, model: Model) -> float:
-        """Mean free-run fit of ``model`` on the training data (-inf if it diverges)."""
-        return mean_fit(model, self.train)
-
-    @property
-    def baseline_score(self) -> float:
-        """:meth:`score` of the baseline (cached)."""
-        if "baseline_score" not in self._cache:
-            self._cache["baseline_score"] = self.score(self.baseline)
-        return float(self._cache["baseline_score"])
-
-    def best_extension(
-        self,
-        candidates: Iterable[tuple[dict[str, Any], Callable[[Dataset], Model]]],
-        description: str,
-    ) -> Extension | None:
-        """The :class:`Extension` of the best candidate (:meth:`select`), or None."""
-        params, model, score, _ = self.select(candidates)
-        return self.extension(params, model, score, description)
-
-    def extension(
-        self, params: dict[str, Any], model: Model | None, score: float, description: str
-    ) -> Extension | None:
-        """The :class:`Extension` for a model chosen with :meth:`select` (None if there is none)."""
-        if model is None:
-            return None
-        return Extension(
-            model=model,
-            params=params,
-            description=description,
-            train_gain=score - self.baseline_score,
-        )
-
-    def select(
-        self, candidates: Iterable[tuple[dict[str, Any], Callable[[Dataset], Model]]]
-    ) -> tuple[dict[str, Any], Model | None, float, list[dict[str, Any]]]:
-        """Choose among ``(params, build)`` candidates by their training simulation fit.
-
-        Returns the best parameters, the best model (built on ``train``), its score
-        (:meth:`score`) and every candidate's score.
-        """
-        best: tuple[dict[str, Any], Model | None, float] = ({}, None, -math.inf)
-        tried: list[dict[str, Any]] = []
-        for params, build in candidates:
-            try:
-                model = build(self.train)
-                score = self.score(model)
-            except (np.linalg.LinAlgError, ValueError, FloatingPointError, OverflowError) as exc:
-                tried.append({"params": params, "score": None, "error": str(exc)})
-                continue
-            tried.append({"params": params, "score": score})
-            if score > best[2]:
-                best = (params, model, score)
-        return best[0], best[1], best[2], tried
-
-
-@dataclass(frozen=True)
-class Extension:
-    """An effect's proposal: the extended model (fitted on all training data) and its parameters."""
-
-    model: Model
-    params: dict[str, Any]
-    description: str
-    #: Gain of the training simulation fit (points).  It sets the effect's share of the error
-    #: budget in the weighted Holm adjustment; 0 or less means the effect cannot name a cause.
-    train_gain: float = 0.0
-
-    @property
-    def n_params(self) -> int:
-        """Scalar parameters the extension added (terms × outputs, plus block parameters)."""
-        return added_parameters(self.model)
-
-
-# -- scoring --------------------------------------------------------------------------------------
-
-
-def _simulate_all(model: Model, data: Dataset) -> FloatArray:
-    data = _aligned(model, data)
-    sims = [simulate(model, e.u, y=e.y, initial="estimate") for e in data.experiments]
-    return np.vstack(sims)
-
-
-def mean_fit(model: Model, data: Dataset) -> float:
-    """Mean free-run fit over outputs (``-inf`` when the simulation diverges)."""
-    data = _aligned(model, data)
-    f = fit(data.y, _simulate_all(model, data))
-    return float(np.mean(f)) if np.all(np.isfinite(f)) else -math.inf
 
 
 def _loss(y: FloatArray, y_hat: FloatArray) -> FloatArray:
@@ -265,10 +153,8 @@ def diagnose(
     >>> d = diagnose(train, valid, method="arx")
     >>> d.cause, d.best.gain
     """
+    # lazy: heavy (tqdm)
     from tqdm import tqdm
-
-    from ..manager import effects as effect_registry
-    from ..manager import identifiers
 
     problems = []
     if not 0 < alpha < 0.5:
@@ -307,8 +193,8 @@ def diagnose(
             method, identifier, baseline = "n4sid", check.pop("_identifier"), check.pop("_model")
         check.pop("_identifier", None)
         check.pop("_model", None)
-    y_valid = _aligned(baseline, valid).y
-    base_sim = _simulate_all(baseline, valid)
+    y_valid = aligned(baseline, valid).y
+    base_sim = simulate_all(baseline, valid)
     base_fit = {n: float(v) for n, v in zip(baseline.output_names, fit(y_valid, base_sim))}
     base_loss = _loss(y_valid, base_sim)
     ctx = Context(
@@ -333,7 +219,7 @@ def diagnose(
         if ext is None:
             skipped.append({"effect": name, "reason": "not applicable to these data"})
             continue
-        sim = _simulate_all(ext.model, valid)
+        sim = simulate_all(ext.model, valid)
         f = fit(y_valid, sim)
         ext_fit = {
             n: float(v) if np.isfinite(v) else -1e300 for n, v in zip(baseline.output_names, f)
@@ -416,7 +302,7 @@ def diagnose(
 
 
 def _direct_test(
-    effect: Any, ctx: Context, ext: Extension, valid: Dataset
+    effect: Effect, ctx: Context, ext: Extension, valid: Dataset
 ) -> dict[str, Any] | None:
     """An effect's direct test of its signature on the validation data, if it has one.
 
@@ -424,10 +310,9 @@ def _direct_test(
     holds a ``p_value`` under the hypothesis that the data do not show the effect where the
     extension puts it (a saturation: the output piled up at the clip level).
     """
-    method = getattr(effect, "direct_test", None)
-    if not callable(method):
+    if not isinstance(effect, DirectTest):
         return None
-    out = method(ctx, ext, valid)
+    out = effect.direct_test(ctx, ext, valid)
     if out is None:
         return None
     try:
@@ -435,8 +320,6 @@ def _direct_test(
     except (TypeError, KeyError, ValueError):
         p = math.nan
     if not 0.0 <= p <= 1.0:
-        from ..errors import PluginError
-
         raise PluginError(
             f"effect {getattr(effect, 'name', effect)!r}:",
             [f"direct_test() must return None or a dict with a p_value in [0, 1], got {out!r}."],
@@ -462,17 +345,15 @@ def check_baseline(baseline: Model, train: Dataset, method: str) -> dict[str, An
     *biased* when ``E_base > BIAS_RATIO · E_n4sid``.  Returns None when the baseline is N4SID
     or the reference cannot be identified.
     """
-    from ..errors import TendonkitError
-    from ..manager import identifiers
 
     if method == "n4sid":
         return None
     try:
         ident = identifiers().get("n4sid").create()
         ref = ident.identify(train)
-        y = _aligned(baseline, train).y
-        e_base = float(np.mean(_loss(y, _simulate_all(baseline, train))))
-        e_ref = float(np.mean(_loss(y, _simulate_all(ref, train))))
+        y = aligned(baseline, train).y
+        e_base = float(np.mean(_loss(y, simulate_all(baseline, train))))
+        e_ref = float(np.mean(_loss(y, simulate_all(ref, train))))
     except (TendonkitError, np.linalg.LinAlgError, ValueError, FloatingPointError):
         return None
     ratio = e_base / e_ref if e_ref > 0 else math.inf
@@ -486,26 +367,6 @@ def check_baseline(baseline: Model, train: Dataset, method: str) -> dict[str, An
         "_identifier": ident,
         "_model": ref,
     }
-
-
-def added_parameters(model: Model) -> int:
-    """Count the parameters of a model's blocks and nonlinear terms.
-
-    A term has one coefficient per output (per state for state space).  Blocks are counted
-    per kind and parameter, not per signal: the effects derive every signal's block from one
-    chosen value (a delay, a width as a fraction of each signal's spread), so four play blocks
-    on four inputs add one free parameter, like two on two outputs.
-    """
-    rep = model.representation
-    n_terms = len(getattr(rep, "terms", ()))
-    per_term = len(model.outputs) if not hasattr(rep, "E") else rep.n_states  # type: ignore[union-attr]
-    kinds = {
-        (where, b.kind, key)
-        for where, blocks in (("in", model.input_blocks), ("out", model.output_blocks))
-        for b in blocks
-        for key in b.params
-    }
-    return n_terms * per_term + len(kinds)
 
 
 def _name_cause(
@@ -533,7 +394,6 @@ def _name_cause(
 
 def _with_training_fit(f: Finding, train: Dataset) -> Finding:
     """Fill in the training fit of a finding's extended model (skipped while searching)."""
-    from ..identification import training_fit
 
     if f.model is None or not f.significant:
         return f
@@ -552,17 +412,4 @@ def params_of(model: Model) -> dict[str, Any]:
     }
 
 
-__all__ = [
-    "BIAS_RATIO",
-    "DEFAULT_EXPERIMENT",
-    "DISCRIMINATING",
-    "Context",
-    "Diagnosis",
-    "Extension",
-    "Finding",
-    "added_parameters",
-    "check_baseline",
-    "diagnose",
-    "mean_fit",
-    "params_of",
-]
+__all__ = ["BIAS_RATIO", "check_baseline", "diagnose", "params_of"]

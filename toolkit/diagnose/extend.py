@@ -25,7 +25,7 @@ from ..dataset import Dataset, Experiment
 from ..errors import SchemaError
 from ..regression import scaled_lstsq, term_columns_of
 from ..schema import ARX, Block, Model, SparseMap, StateSpace
-from ..simulate import _aligned, apply_block
+from ..simulate import aligned, apply_block
 from ..terms import Term
 
 FloatArray = NDArray[np.float64]
@@ -61,7 +61,7 @@ def extend_with_terms(
     inputs, so ``A``, ``B`` and ``E`` are estimated together; without it, ``A`` and ``C`` are
     kept and ``B``, ``D``, ``E``, ``x0`` are refitted by output-error least squares.
     """
-    data = _aligned(model, data)
+    data = aligned(model, data)
     terms = tuple(terms)
     rep = model.representation
     if isinstance(rep, ARX):

@@ -8,9 +8,15 @@ from typing import Any
 import numpy as np
 
 from ..dataset import Dataset
+from ..figures import (
+    plot_correlation,
+    plot_outputs,
+    plot_ranking,
+    plot_residual_vs,
+)
 from ..report import Report
 from . import Diagnosis
-from .engine import _simulate_all
+from .engine import simulate_all
 from .findings import evidence_notes
 
 
@@ -37,12 +43,6 @@ def write_report(
     diagnosis: Diagnosis, valid: Dataset, folder: str | Path, model_path: str | None = None
 ) -> Path:
     """Write ``index.html`` with figures into ``folder`` and return its path."""
-    from ..figures import (
-        plot_correlation,
-        plot_outputs,
-        plot_ranking,
-        plot_residual_vs,
-    )
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
@@ -103,9 +103,9 @@ def write_report(
             note=True,
         )
     rep.heading("Measured vs simulated, before and after")
-    sims: dict[str, Any] = {"baseline": _simulate_all(diagnosis.baseline, valid)}
+    sims: dict[str, Any] = {"baseline": simulate_all(diagnosis.baseline, valid)}
     if best is not None and best.model is not None:
-        sims[f"extended ({best.cause})"] = _simulate_all(best.model, valid)
+        sims[f"extended ({best.cause})"] = simulate_all(best.model, valid)
     t = np.concatenate([e.t - e.t[0] + (i * 0) for i, e in enumerate(valid.experiments)])
     t = np.arange(len(t)) * valid.dt
     rep.figure(

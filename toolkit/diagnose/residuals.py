@@ -19,7 +19,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..dataset import Dataset
+from ..metrics import fit
+from ..predict import predict
 from ..schema import Model
+from ..simulate import aligned, simulate
 
 FloatArray = NDArray[np.float64]
 
@@ -193,11 +196,8 @@ def analyse(
     -------
     ResidualAnalysis
     """
-    from ..metrics import fit
-    from ..predict import predict
-    from ..simulate import _aligned, simulate
 
-    data = _aligned(model, data)
+    data = aligned(model, data)
     res, one, us, ys = [], [], [], []
     for e in data.experiments:
         sim = simulate(model, e.u, y=e.y, initial=initial)  # type: ignore[arg-type]

@@ -13,6 +13,7 @@ import numpy as np
 
 from ..schema import Model, Provenance, Signal, SparseMap, StateSpace
 from ..terms import Factor, Term
+from ..testsystems import random_state_space
 
 TENDONS = tuple(Signal(f"F{i}", "N") for i in range(1, 5))
 
@@ -43,6 +44,7 @@ def two_mode_model(
     name : str
         Model name.
     """
+    # lazy: heavy (scipy)
     from scipy.signal import cont2discrete
 
     Ac = np.zeros((4, 4))
@@ -136,7 +138,6 @@ def random_tendon_model(n_states: int = 8, *, seed: int = 0, gain: float = 0.006
     gain : float
         Largest absolute static gain (rad/N).
     """
-    from ..testsystems import random_state_space
 
     base = random_state_space(n_states, 2, 2, seed=seed, dt=0.03).representation
     assert isinstance(base, StateSpace)

@@ -121,6 +121,7 @@ def _reduce(
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
     """Minimal realisation (python-control/slycot TB01PD) or balanced truncation (AB09AD)."""
     if reduce == "minreal":
+        # lazy: heavy (control)
         import control
 
         red = control.minreal(control.ss(A, B, C, D, dt), verbose=False)
@@ -136,6 +137,7 @@ def _reduce(
         )
     # python-control 0.10's balred() treats every system as continuous-time (it would keep
     # every mode with a positive real part), so call slycot's discrete-time AB09AD directly.
+    # lazy: heavy (slycot)
     from slycot import ab09ad
 
     n, m, p = A.shape[0], B.shape[1], C.shape[0]
@@ -193,6 +195,7 @@ def predictor_gain(
     array (n + nd, ny)
         Gain ``L`` of ``x̂a[k+1] = Aa x̂a[k] + Ba u[k] + L (y[k] - ŷ[k])``.
     """
+    # lazy: heavy (scipy)
     from scipy.linalg import solve_discrete_are
 
     n, nd, ny = lp.n_states, Bd.shape[1], lp.C.shape[0]

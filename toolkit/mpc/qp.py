@@ -139,6 +139,7 @@ class TrackingQP:
         solver_options: Mapping[str, Any] | None = None,
         formulation: str = "sparse",
     ) -> None:
+        # lazy: heavy (cvxpy)
         import cvxpy as cp
 
         if formulation not in ("sparse", "condensed"):
@@ -316,6 +317,7 @@ class TrackingQP:
         return QPResult(status, True, U=np.asarray(U), Y=np.asarray(Y), X=X)
 
     def _solve_cvxpy(self) -> tuple[str, bool]:
+        # lazy: heavy (cvxpy)
         import cvxpy as cp
 
         try:
@@ -334,6 +336,7 @@ class _DirectSolver:
     def __init__(
         self, problem: Any, solver: str, options: dict[str, Any], variables: list[Any]
     ) -> None:
+        # lazy: heavy (cvxpy); heavy (scipy)
         import cvxpy as cp
         import scipy.sparse as sp
 
@@ -427,6 +430,7 @@ class _DirectSolver:
         return q, b, a
 
     def _matrix(self, values: FloatArray) -> Any:
+        # lazy: heavy (scipy)
         import scipy.sparse as sp
 
         indices, indptr, shape = self._A_pattern
@@ -448,6 +452,7 @@ class _DirectSolver:
     def _setup(self, q: FloatArray, b: FloatArray, a: FloatArray) -> None:
         """Create the persistent solver (factorisation structures) once."""
         if self.solver == "clarabel":
+            # lazy: heavy (clarabel)
             import clarabel
 
             settings = clarabel.DefaultSettings()
@@ -460,6 +465,7 @@ class _DirectSolver:
                 cones.append(clarabel.NonnegativeConeT(self.n_ineq))
             self._solver = clarabel.DefaultSolver(self._P, q, self._matrix(-a), b, cones, settings)
         else:
+            # lazy: heavy (osqp)
             import osqp
 
             self._solver = osqp.OSQP()
@@ -485,6 +491,7 @@ class _DirectSolver:
     def _solve_osqp(
         self, q: FloatArray, b: FloatArray, a: FloatArray
     ) -> tuple[str, bool, FloatArray | None]:
+        # lazy: heavy (osqp)
         import osqp
 
         lower, upper = self._bounds(b)

@@ -27,6 +27,7 @@ from __future__ import annotations
 import ctypes
 import math
 import shutil
+import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -162,6 +163,7 @@ class PlantSession:
         parameters: Mapping[str, Any] | None = None,
         instance_name: str = "plant",
     ) -> None:
+        # lazy: heavy (fmpy)
         from fmpy import extract, read_model_description
         from fmpy.fmi2 import FMU2Slave
 
@@ -224,6 +226,7 @@ class PlantSession:
 
     # ------------------------------------------------------------------ FMI plumbing
     def _make_callbacks(self) -> Any:
+        # lazy: heavy (fmpy)
         from fmpy import calloc, free
         from fmpy.fmi2 import (
             fmi2CallbackAllocateMemoryTYPE,
@@ -240,6 +243,7 @@ class PlantSession:
         callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
         callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
         try:
+            # lazy: heavy (fmpy)
             from fmpy.logging import addLoggerProxy
 
             addLoggerProxy(ctypes.byref(callbacks))
@@ -259,6 +263,7 @@ class PlantSession:
             fmu.setString([vr], [str(value)])
 
     def _prepare_io(self, refs: Mapping[str, int]) -> None:
+        # lazy: heavy (fmpy)
         from fmpy.fmi2 import fmi2Real, fmi2ValueReference
 
         self._vr_in = (fmi2ValueReference * len(INPUTS))(*[refs[n] for n in INPUTS])
@@ -350,6 +355,7 @@ def fmu_parameters(fmu: str | Path) -> dict[str, Any]:
     -------
     dict
     """
+    # lazy: heavy (fmpy)
     from fmpy import read_model_description
 
     try:
@@ -423,6 +429,7 @@ def collect(
     FMUError
         The FMU rejected the parameters, the step size or a step.
     """
+    # lazy: heavy (tqdm)
     from tqdm import tqdm
 
     overrides = dict(effects or {})
@@ -473,6 +480,4 @@ def collect(
 
 
 def _stderr() -> Any:
-    import sys
-
     return sys.stderr

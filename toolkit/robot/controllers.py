@@ -13,6 +13,9 @@ from typing import Any
 import numpy as np
 
 from ..errors import OptionError, raise_if
+from ..mpc import InputTarget, LinearMPC, NoiseCovariance, NonlinearMPC
+from ..mpc.linear import linear_problems
+from ..mpc.nonlinear import nonlinear_problems
 
 #: Nominal pretension per tendon (N): the pair sums the controllers hold are twice this.
 PRETENSION = 105.0
@@ -100,8 +103,6 @@ def controller_kind(model: Any) -> str:
     >>> controller_kind(two_mode_model()), controller_kind(tendon_sparse_map())
     ('linear', 'nonlinear')
     """
-    from ..mpc.linear import linear_problems
-    from ..mpc.nonlinear import nonlinear_problems
 
     problems = []
     if len(model.inputs) != 4:
@@ -148,7 +149,6 @@ def make_controller(
     >>> type(ctrl).__name__, ctrl.horizon
     ('LinearMPC', 10)
     """
-    from ..mpc import InputTarget, LinearMPC, NoiseCovariance, NonlinearMPC
 
     kind = controller_kind(model)
     s = settings or ControllerSettings()

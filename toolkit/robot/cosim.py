@@ -37,6 +37,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import FMUError, OptionError, raise_if
+from . import protocol
+from .collect import OUTPUTS as ALL
+from .collect import PlantSession
 from .controllers import (
     DEFAULTS,
     PAIR_SUMS,
@@ -46,6 +49,7 @@ from .controllers import (
     make_controller,
 )
 from .figures import plot_tracking
+from .kinematics import commanded_tensions, expand_joints, forward_kinematics
 
 __all__ = [
     "DEFAULTS",
@@ -167,8 +171,6 @@ def make_reference(
     >>> make_reference("step", duration=3.0).q12.shape
     (100, 2)
     """
-    from . import protocol
-    from .kinematics import commanded_tensions, expand_joints, forward_kinematics
 
     problems = []
     if kind not in REFERENCES:
@@ -333,9 +335,6 @@ class PlantFMU:
     """
 
     def __init__(self, path: str | Path, parameters: Mapping[str, Any] | None = None) -> None:
-        from .collect import OUTPUTS as ALL
-        from .collect import PlantSession
-
         path = Path(path)
         if not path.is_file():
             raise FMUError(f"Plant FMU {str(path)!r} does not exist.")
@@ -394,6 +393,7 @@ def run(
     -------
     CosimResult
     """
+    # lazy: heavy (tqdm)
     from tqdm import tqdm
 
     names = list(getattr(controller, "output_names", ["q1", "q2"])) if controller else []

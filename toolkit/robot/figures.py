@@ -28,6 +28,7 @@ _PLANES = (("pan", (1, 3, 5)), ("tilt", (2, 4, 6)))
 
 
 def _new_figure(width: float, height: float) -> Any:
+    # lazy: heavy (matplotlib)
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -200,6 +201,7 @@ def plot_tracking(
     list of Path
         ``[out_dir / "fig5_tracking.png"]``.
     """
+    # lazy: heavy (matplotlib)
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 

@@ -16,6 +16,7 @@ and ``T_EE(q) = A_1 Tz(ℓ) A_2 Tz(ℓ) … A_6 Tz(ℓ) Tz(ℓ_tool)``.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -387,6 +388,26 @@ def mass_matrix(q: np.ndarray, robot: RobotParameters | None = None) -> np.ndarr
     world_inertia = rots @ inertia @ np.swapaxes(rots, -1, -2)
     out += np.einsum("njai,njab,njbk->nik", jw[:, :N_JOINTS], world_inertia, jw[:, :N_JOINTS])
     return out[0] if single else out
+
+
+def rest_inertia(robot: RobotParameters | None = None) -> np.ndarray:
+    """Joint-space inertia at q = 0, kg m², shape (6, 6) (block-diagonal pan/tilt), read-only.
+
+    :func:`mass_matrix` at the straight configuration, computed once per robot.
+
+    Examples
+    --------
+    >>> (np.diag(rest_inertia()) * 1e3).round(2)
+    array([9.65, 5.97, 3.37, 1.67, 0.67, 0.18])
+    """
+    return _rest_inertia(_robot(robot))
+
+
+@functools.lru_cache(maxsize=16)
+def _rest_inertia(robot: RobotParameters) -> np.ndarray:
+    m0 = mass_matrix(np.zeros(N_JOINTS), robot)
+    m0.setflags(write=False)
+    return m0
 
 
 def gravity_torque(

@@ -271,12 +271,12 @@ class RobotParameters:
         """Joint damping ``c_i = β K_i(P_nom)``, N m s/rad, shape (6,)."""
         return _readonly(self.damping_beta * self.stiffness())
 
-    @cached_property
-    def M0(self) -> np.ndarray:
-        """Joint-space inertia at q = 0, kg m², shape (6, 6) (block-diagonal pan/tilt)."""
-        from .kinematics import mass_matrix  # kinematics imports this module
+    def __getattr__(self, name: str) -> Any:
+        # ``M0`` was a property in 0.1 (now tendonkit.robot.kinematics.rest_inertia): it needs
+        # the kinematics, which build on these parameters.  Kept for one release.
+        from .._compat import moved_attribute
 
-        return _readonly(mass_matrix(np.zeros(N_JOINTS), self))
+        return moved_attribute(self, name)
 
     @property
     def L_tip(self) -> float:

@@ -18,7 +18,6 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.signal
 
 from ..errors import OptionError, raise_if
 from . import PAPER_RATIOS, RobotParameters
@@ -406,6 +405,9 @@ def pseudo_random(
     P = P[:, 0]
     q_ref, ee_ref, u = kinematic_controller(xy, P, robot, ratios, clip=False)
     if dither_sigma > 0:
+        # lazy: heavy (scipy.signal takes 2 s to import)
+        import scipy.signal
+
         b, a = scipy.signal.butter(2, dither_fc, fs=1.0 / h)
         u = u + scipy.signal.lfilter(b, a, dither_sigma * rng.standard_normal((n, 4)), axis=0)
     u = np.clip(u, robot.T_min, robot.T_max)

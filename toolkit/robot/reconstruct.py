@@ -14,7 +14,7 @@ from any data set that has all six joints, two ways:
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 
 from ..dataset import Dataset
 from ..errors import DataError
+from ..figures import plot_ee_path, plot_joints
 from ..metrics import fit
 from . import PAPER_RATIOS
 from .kinematics import expand_joints, forward_kinematics
@@ -187,8 +188,6 @@ def joint_report(
             )
         out["ee_error_cm"] = ee_error_cm(ee_meas, ee_model)
     if plot_dir is not None:
-        from ..figures import plot_ee_path, plot_joints
-
         # experiments back to back: time runs on, and path lines break between experiments
         t = data.dt * np.arange(sum(e.n_samples for e in data.experiments))
         cuts = np.cumsum([e.n_samples for e in data.experiments])[:-1]
@@ -204,3 +203,35 @@ def joint_report(
             files.append(str(plot_ee_path(Path(plot_dir), name, ee_m, ee_s)))
         out["figures"] = files
     return out
+
+
+def joint_extras(
+    *,
+    joints: bool = True,
+    ee: bool = True,
+    ratios: Ratios | None = None,
+    plot_dir: str | Path | None = None,
+) -> Callable[[Any, Dataset, Sequence[FloatArray], str], dict[str, Any]]:
+    """The robot's additions to each row of :func:`tendonkit.compare.compare`.
+
+    Returns a function for its ``extras`` argument that adds :func:`joint_report` (the
+    reconstructed joints' fits, the end-effector error and, with ``plot_dir``, their figures).
+
+    Examples
+    --------
+    >>> from tendonkit.compare import compare
+    >>> extras = joint_extras(joints=True, ee=True)  # doctest: +SKIP
+    >>> compare([model], data, extras=extras)  # doctest: +SKIP
+    """
+
+    def extras(model: Any, data: Dataset, sims: Sequence[FloatArray], name: str) -> dict[str, Any]:
+        return joint_report(
+            model, data, sims, joints=joints, ee=ee, ratios=ratios, plot_dir=plot_dir, name=name
+        )
+
+    return extras
+
+
+def has_base_joints(model: Any) -> bool:
+    """True when ``model`` has the outputs q1 and q2 that the joint reconstruction needs."""
+    return {"q1", "q2"} <= set(model.output_names)

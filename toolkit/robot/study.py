@@ -26,6 +26,18 @@ from typing import Any
 
 import numpy as np
 
+from ..compare import compare, score
+from ..diagnose import diagnose
+from ..diagnose.report import write_report
+from ..manager import identifiers
+from ..report import Report
+from ..stepper import Stepper
+from . import protocol
+from .collect import collect
+from .cosim import make_controller, make_reference, open_loop, plot_tracking, run
+from .figures import fig2
+from .reconstruct import Ratios, estimate_ratios, joint_report
+
 #: The paper's Table I (validation fit, mean over q1 and q2, percent).
 PAPER_FIT = {"sindyc": 67.74, "arx": 44.90, "n4sid": 39.12}
 PAPER_EE_ERROR_CM = 2.48
@@ -54,8 +66,6 @@ class _Stages:
 
 
 def _protocols(quick: bool, seed: int) -> dict[str, Any]:
-    from . import protocol
-
     radii = [0.02, 0.05, 0.08, 0.12] if quick else None
     return {
         "train_circles": protocol.circles(radii=radii, laps=1 if quick else 2),
@@ -66,10 +76,9 @@ def _protocols(quick: bool, seed: int) -> dict[str, Any]:
 
 
 def _collect(out: Path, quick: bool, seed: int, progress: bool) -> dict[str, Any]:
-    from tendonkit.fmu._config import PlantConfig
+    # lazy: keeps this module off tendonkit.fmu until needed
     from tendonkit.fmu.build import build_plant_fmu
-
-    from .collect import collect
+    from tendonkit.fmu.plant import PlantConfig
 
     config = PlantConfig.preset("paper_like").replace(noise_on=True, seed=seed)
     plant = build_plant_fmu(out / "plant_paper_like.fmu", config)
@@ -93,16 +102,12 @@ def _collect(out: Path, quick: bool, seed: int, progress: bool) -> dict[str, Any
 
 
 def _identify(train: Any, quick: bool) -> dict[str, Any]:
-    from ..manager import identifiers
-
     reg = identifiers()
     plan = {"n4sid": {"order": 8}, "arx": {"na": 8, "nb": 8, "nk": 1}, "sindyc": {}}
     return {m: reg.get(m).create(**opts).identify(train) for m, opts in plan.items()}
 
 
 def _table(models: dict[str, Any], valid: Any) -> dict[str, Any]:
-    from ..compare import compare
-
     res = compare(list(models.values()), valid, names=list(models))
     for row in res["models"]:
         row["paper_mean_fit"] = PAPER_FIT.get(row["model"])
@@ -129,9 +134,6 @@ def _render_table(res: dict[str, Any]) -> str:
 
 
 def _reconstruction(models: dict[str, Any], data: dict[str, Any], out: Path) -> dict[str, Any]:
-    from ..compare import score
-    from .reconstruct import Ratios, estimate_ratios, joint_report
-
     train, valid = data["train"], data["valid"]
     q_train = np.column_stack([train.signal(f"q{i}") for i in range(1, 7)])
     est = estimate_ratios(q_train)
@@ -164,9 +166,6 @@ def _render_reconstruction(rec: dict[str, Any]) -> str:
 def _diagnose(
     models: dict[str, Any], table: dict[str, Any], data: dict[str, Any], out: Path, quick: bool
 ) -> dict[str, Any]:
-    from ..diagnose import diagnose
-    from ..diagnose.report import write_report
-
     best = max(table["models"], key=lambda r: r["mean_fit"])["model"]
     model = models[best]
     options = dict(model.provenance.options)
@@ -203,12 +202,11 @@ def _render_diagnosis(d: dict[str, Any]) -> str:
 
 
 def _export(diag: dict[str, Any], valid: Any, out: Path) -> dict[str, Any]:
+    # lazy: heavy (fmpy); keeps this module off tendonkit.fmu until needed
     from fmpy import simulate_fmu
     from fmpy.validation import validate_fmu
 
-    from tendonkit.fmu.build import build_model_fmu
-
-    from ..stepper import Stepper
+    from tendonkit.fmu.build import build_model_fmu  # lazy: keeps this module off fmu
 
     model = diag["result"].extended
     path = build_model_fmu(model, out / "model.fmu")
@@ -314,8 +312,6 @@ def run_demo(
 
 
 def _fig2(data: dict[str, Any], out: Path) -> list[Path]:
-    from .figures import fig2
-
     rec = data["recordings"]["train_circles"]
     return list(
         fig2(
@@ -325,8 +321,6 @@ def _fig2(data: dict[str, Any], out: Path) -> list[Path]:
 
 
 def _mpc(models: dict[str, Any], data: dict[str, Any], out: Path, quick: bool) -> dict[str, Any]:
-    from .cosim import make_controller, make_reference, open_loop, plot_tracking, run
-
     ref = make_reference("petal", duration=15.0 if quick else 40.0)
     plant = data["plant"]
     # The tuned defaults of the co-simulation (tendonkit.robot.controllers.DEFAULTS): Q = 1e4, R = 0.3,
@@ -365,8 +359,6 @@ def _write_report(
     diag: dict[str, Any],
     data: dict[str, Any],
 ) -> Path:
-    from ..report import Report
-
     rep = Report("tendonkit demo — the paper's study on the embedded plant", out)
     rep.text(
         "Plant: the rolling-joint tendon robot FMU with the paper-like preset (tendon friction, "

@@ -1,0 +1,158 @@
+"""The parts of a model that the schema is built from: signals, blocks, representations, provenance.
+
+A private module below :mod:`tendonkit.schema` (which re-exports every name here), so that the
+parser (:mod:`tendonkit._schema_io`) and the realisations (:mod:`tendonkit.realize`) depend on the
+parts without depending on :class:`~tendonkit.schema.Model`, and the schema can use both.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .terms import Term
+
+SCHEMA_VERSION = 1
+FloatArray = NDArray[np.float64]
+
+#: Kinds of :class:`Block` (static or hysteretic operators on one signal).
+BLOCK_KINDS: dict[str, tuple[str, ...]] = {
+    "delay": ("samples",),
+    "dead_zone": ("threshold", "center"),
+    "saturation": ("lower", "upper"),
+    "play": ("width",),
+    "first_order_lag": ("pole",),
+    "rate_limit": ("rate",),
+}
+
+
+@dataclass(frozen=True)
+class Signal:
+    """A named signal with a unit (SI, free text such as ``"rad"`` or ``"N"``)."""
+
+    name: str
+    unit: str = ""
+
+
+@dataclass(frozen=True)
+class Block:
+    """An operator applied to one input before, or one output after, the representation.
+
+    Kinds and parameters (see :data:`BLOCK_KINDS`):
+
+    - ``delay``: ``samples`` >= 0; with ``n = floor(samples)`` and ``α = samples - n``,
+      ``v[k] = (1-α) s[k-n] + α s[k-n-1]`` (a fractional part is the frame average of a
+      zero-order-held signal delayed by a fraction of a sample);
+    - ``dead_zone``: ``threshold`` >= 0 around ``center``: ``v = sign(s-c)·max(|s-c|-th, 0) + c``;
+    - ``saturation``: clip to [``lower``, ``upper``];
+    - ``play``: backlash/play operator of half-width ``width`` (stateful, starts at the signal);
+    - ``first_order_lag``: ``v[k+1] = p v[k] + (1-p) s[k]``, ``pole`` in [0, 1);
+    - ``rate_limit``: ``v[k] = v[k-1] + clip(s[k] - v[k-1], -rate, rate)``, ``rate`` > 0 per sample.
+    """
+
+    kind: str
+    signal: str
+    params: dict[str, float] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain-data form."""
+        return {"kind": self.kind, "signal": self.signal, "params": dict(self.params)}
+
+
+@dataclass(frozen=True, eq=False)
+class StateSpace:
+    """Discrete-time state space ``x[k+1] = A x + B u``, ``y = C x + D u``.
+
+    ``K`` is an optional innovation (Kalman) gain, ``x[k+1] = A x + B u + K e``, used for
+    k-step prediction and state estimation.  Optional nonlinear ``terms`` Θ[k] over outputs and
+    inputs (lag >= 0; ``y[k]`` is known before ``x[k+1]``) enter the state update through ``E``
+    (n × n_terms): ``x[k+1] = A x + B u + E Θ`` (model extensions made by ``diagnose``).
+    """
+
+    A: FloatArray
+    B: FloatArray
+    C: FloatArray
+    D: FloatArray
+    x0: FloatArray | None = None
+    K: FloatArray | None = None
+    terms: tuple[Term, ...] = ()
+    E: FloatArray | None = None
+    kind: Literal["state_space"] = "state_space"
+
+    @property
+    def n_states(self) -> int:
+        """Number of states."""
+        return int(self.A.shape[0])
+
+
+@dataclass(frozen=True, eq=False)
+class ARX:
+    """MIMO ARX model.
+
+    ``y[k] + sum_i A[i-1] y[k-i] = sum_j B[j-1] u_nk[k-j+1] + offset``, where input ``m`` is
+    delayed by ``nk[m]`` samples: ``u_nk[k][m] = u[k - nk[m]][m]``.  ``A`` has ``na`` matrices
+    of shape ``(ny, ny)`` (outputs may couple), ``B`` has ``nb`` matrices ``(ny, nu)``; orders
+    that differ per input are zero columns.  Optional nonlinear regressors ``terms`` enter with
+    coefficients ``term_coefficients`` of shape ``(n_terms, ny)`` (NARX extensions).
+    """
+
+    A: tuple[FloatArray, ...]
+    B: tuple[FloatArray, ...]
+    nk: tuple[int, ...]
+    offset: FloatArray | None = None
+    terms: tuple[Term, ...] = ()
+    term_coefficients: FloatArray | None = None
+    kind: Literal["arx"] = "arx"
+
+    @property
+    def na(self) -> int:
+        """Number of output lags."""
+        return len(self.A)
+
+    @property
+    def nb(self) -> int:
+        """Number of input lags (after the delay)."""
+        return len(self.B)
+
+
+@dataclass(frozen=True, eq=False)
+class SparseMap:
+    """Sparse nonlinear map ``x[k+1] = Ξᵀ Θ(x[k], u[k])``, ``y = x[output_states]``.
+
+    ``terms`` is Θ as structured :class:`~tendonkit.terms.Term` objects over the model's state
+    and input names; ``coefficients`` is Ξ with shape ``(n_terms, n_states)``.
+    """
+
+    terms: tuple[Term, ...]
+    coefficients: FloatArray
+    output_states: tuple[int, ...]
+    x0: FloatArray | None = None
+    kind: Literal["sparse_map"] = "sparse_map"
+
+    @property
+    def n_states(self) -> int:
+        """Number of states."""
+        return int(self.coefficients.shape[1])
+
+
+Representation = StateSpace | ARX | SparseMap
+
+
+@dataclass(frozen=True)
+class Provenance:
+    """Where a model came from: identifier, its version and options, data hash, training fit.
+
+    ``details`` holds machine-readable results of the identification that are not options
+    (plain JSON data: e.g. the threshold a sweep chose, the singular values behind an order).
+    """
+
+    identifier: str = ""
+    version: str = ""
+    options: dict[str, Any] = field(default_factory=dict)
+    dataset_hash: str = ""
+    training_fit: dict[str, float] = field(default_factory=dict)
+    notes: str = ""
+    details: dict[str, Any] = field(default_factory=dict)

@@ -1,0 +1,170 @@
+"""The ``diagnose`` subcommand: name what a model gets wrong, extend it, measure the gain."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+from ..dataset import Dataset
+from ..diagnose import diagnose
+from ..diagnose.findings import evidence_notes
+from ..diagnose.report import write_report
+from ..errors import DataError
+from ..manager import effects
+from .common import (
+    atomic_write,
+    check_output_dir,
+    check_output_path,
+    identifier_arguments,
+    output_dirs,
+    raise_problems,
+    seed_argument,
+    split_names,
+    write_json,
+)
+
+
+def add_commands(sub: Any) -> None:
+    """Add ``diagnose`` to the ``tendonkit`` subparsers."""
+    p = sub.add_parser("diagnose", help="name what a model gets wrong, extend it, measure the gain")
+    p.add_argument("train", help="training CSV")
+    p.add_argument("valid", help="validation CSV (never used to fit or choose anything)")
+    p.add_argument("--inputs", required=True, help="input columns, comma separated")
+    p.add_argument("--outputs", required=True, help="output columns, comma separated")
+    p.add_argument("--method", default="arx", help="baseline identifier (default: arx)")
+    p.add_argument("--option", action="append", metavar="KEY=VALUE", help="baseline option")
+    p.add_argument("--effects", help="effects to try, comma separated (default: all registered)")
+    p.add_argument("--alpha", type=float, default=0.01, help="significance level (default 0.01)")
+    p.add_argument(
+        "--min-relative-gain",
+        type=float,
+        default=0.02,
+        help="smallest relative drop of the validation error energy that counts (default 0.02)",
+    )
+    p.add_argument(
+        "--min-gain",
+        type=float,
+        default=0.25,
+        help="smallest validation gain, in points of fit, that can name a cause (default 0.25)",
+    )
+    p.add_argument("--seed", type=seed_argument, default=0, help="seed for every random choice")
+    p.add_argument(
+        "--no-fallback",
+        action="store_true",
+        help="keep the requested baseline even when a linear n4sid model simulates the training "
+        "data far better (by default diagnose then uses n4sid; see docs/diagnose.md)",
+    )
+    p.add_argument("--json", help="write the result as JSON here")
+    p.add_argument(
+        "--model", help="write the extended model here (default: next to --json/--report)"
+    )
+    p.add_argument("--report", help="write an HTML report with figures into this folder")
+    p.add_argument("--time", default="t", help="time column (default: t)")
+    p.set_defaults(func=cmd_diagnose)
+
+
+def cmd_diagnose(args: argparse.Namespace) -> int:
+    """Find what the baseline model gets wrong, name the cause, extend and measure the gain."""
+    problems: list[str] = []
+    inputs, outputs, options, _ = identifier_arguments(args, problems)
+    chosen = split_names(args.effects) if args.effects is not None else None
+    if args.effects is not None and not chosen:
+        problems.append(f"--effects {args.effects!r} names no effect.")
+    if chosen:
+        known = effects().names()
+        problems.extend(
+            f"unknown effect {e!r}; registered: {', '.join(known)}."
+            for e in chosen
+            if e not in known
+        )
+    files = [args.train, args.valid]
+    if args.report:
+        check_output_dir(args.report, files, problems, what="--report")
+    for option, out in (("--json", args.json), ("--model", args.model)):
+        if out:
+            check_output_path(out, files, problems, what=option, creates=[args.report])
+    if args.json and args.model and Path(args.json).resolve() == Path(args.model).resolve():
+        problems.append("--json and --model name the same file.")
+    data = []
+    for path in (args.train, args.valid):
+        try:
+            data.append(Dataset.from_csv(path, inputs, outputs, time=args.time))
+        except DataError as exc:
+            problems.extend(exc.problems or [str(exc)])
+    if len(data) == 2 and abs(data[0].dt - data[1].dt) > 0.01 * data[0].dt:
+        problems.append(
+            f"training and validation sample times differ: {data[0].dt} s and {data[1].dt} s."
+        )
+    raise_problems(problems, "tendonkit diagnose cannot run:")
+    with output_dirs(args.report):
+        train, valid = data
+        result = diagnose(
+            train,
+            valid,
+            method=args.method,
+            options=options,
+            effects=chosen,
+            alpha=args.alpha,
+            min_relative_gain=args.min_relative_gain,
+            min_gain=args.min_gain,
+            seed=args.seed,
+            progress=sys.stderr.isatty(),
+            fallback=not args.no_fallback,
+        )
+        model_path = args.model or (
+            str(Path(args.report) / "extended_model.json") if args.report else None
+        )
+        if model_path is None and args.json:
+            model_path = str(Path(args.json).with_name(Path(args.json).stem + "_model.json"))
+        if model_path is not None:
+            atomic_write(model_path, result.extended.save)
+        summary = result.to_dict(model_path)
+        if args.json:
+            write_json(args.json, summary)
+        if args.report:
+            index = write_report(result, valid, args.report, model_path)
+            summary["report"] = str(index)
+    print(render_diagnosis(summary))
+    return 0
+
+
+def render_diagnosis(summary: dict[str, Any]) -> str:
+    """Plain-text summary of a diagnosis."""
+    lines = [
+        f"cause: {summary['cause']}",
+        f"baseline ({summary['baseline']['method']}): fit {summary['baseline']['fit']:.2f} %",
+    ]
+    check = summary["baseline"].get("check")
+    if check and check["biased"]:
+        what = (
+            "diagnosed against n4sid instead"
+            if check["fallback"]
+            else "kept (--no-fallback); its gains may measure that bias"
+        )
+        lines.append(
+            f"note: the {check['requested_method']} baseline's training free-run error is "
+            f"{check['error_ratio']:.1f}x that of a linear n4sid model (output noise biases an "
+            f"equation-error fit); {what}."
+        )
+    ext = summary["extended"]
+    if summary["cause"] != "none":
+        lines.append(
+            f"extended ({ext['effect']}): fit {ext['fit']:.2f} % (gain {ext['gain']:+.2f} points)"
+            + (f", model: {ext['model']}" if ext.get("model") else "")
+        )
+    if summary.get("margin_to_runner_up") is not None:
+        lines.append(f"margin to runner-up: {summary['margin_to_runner_up']:.2f} points")
+    lines.extend(f"note: {n}" for n in evidence_notes(summary))
+    if summary.get("ambiguous"):
+        lines.append(summary["ambiguous"]["statement"])
+        lines.append("to tell them apart: " + summary["ambiguous"]["experiment"])
+    lines.append("findings (validation gain, p-value adjusted for trying every effect):")
+    for f in summary["findings"]:
+        mark = "*" if f["significant"] else " "
+        p = f.get("p_adjusted", f["p_value"])
+        lines.append(f" {mark} {f['cause']:<20} {f['gain']:+8.2f}  p_adj={p:.3g}")
+    if summary.get("report"):
+        lines.append(f"report: {summary['report']}")
+    return "\n".join(lines)

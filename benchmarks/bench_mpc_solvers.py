@@ -30,7 +30,7 @@ import time
 
 import numpy as np
 
-from tendonkit.mpc import LinearMPC, NonlinearMPC
+from tendonkit.mpc import LinearMPC, NonlinearMPC, Solver, Weights
 from tendonkit.mpc.examples import random_tendon_model, tendon_sparse_map
 from tendonkit.mpc.nonlinear import SparseMapDynamics
 from tendonkit.realize import to_state_space
@@ -117,7 +117,7 @@ def bench_linear(steps: int) -> None:
         base = None
         for fast in (False, True):
             t0 = time.perf_counter()
-            ctrl = LinearMPC(plant, R=1e-3, solver=solver, fast=fast)
+            ctrl = LinearMPC(plant, weights=Weights(R=1e-3), solver=Solver(name=solver, fast=fast))
             build = time.perf_counter() - t0
             t, cpu, u = run_linear(ctrl, plant, ref)
             if base is None:
@@ -140,7 +140,11 @@ def bench_linear(steps: int) -> None:
         ("osqp", "sparse", {}),
         ("clarabel", "sparse", {"iterative_refinement_enable": True}),
     ):
-        ctrl = LinearMPC(plant, R=1e-3, solver=solver, formulation=form, solver_options=opts)
+        ctrl = LinearMPC(
+            plant,
+            weights=Weights(R=1e-3),
+            solver=Solver(name=solver, formulation=form, options=opts),
+        )
         t, cpu, _ = run_linear(ctrl, plant, ref)
         label = f"{solver:<8} fast   [{form}]{' refinement on' if opts else ''}"
         print(row(label, t, cpu, f"fallbacks {ctrl.n_fallbacks}"))
@@ -155,7 +159,9 @@ def bench_nonlinear(steps: int) -> None:
         base = None
         for fast in (False, True):
             t0 = time.perf_counter()
-            ctrl = NonlinearMPC(model, R=1e-3, solver=solver, fast=fast)
+            ctrl = NonlinearMPC(
+                model, weights=Weights(R=1e-3), solver=Solver(name=solver, fast=fast)
+            )
             build = time.perf_counter() - t0
             solve, step, cpu, u = run_nonlinear(ctrl, plant, ref)
             if base is None:
@@ -185,7 +191,9 @@ def bench_arx(steps: int) -> None:
     for solver in ("clarabel", "osqp"):
         for reduce in ("none", "minreal"):
             t0 = time.perf_counter()
-            ctrl = LinearMPC(arx, R=1e-3, solver=solver, reduce=reduce)
+            ctrl = LinearMPC(
+                arx, weights=Weights(R=1e-3), solver=Solver(name=solver), reduce=reduce
+            )
             build = time.perf_counter() - t0
             t, cpu, _ = run_linear(ctrl, truth, ref)
             n0 = ctrl.prediction.n_realized

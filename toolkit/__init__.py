@@ -13,6 +13,7 @@ from .errors import (
     DataError,
     FMUError,
     OptionError,
+    OutputError,
     PluginError,
     SchemaError,
     SimulationError,
@@ -21,7 +22,17 @@ from .errors import (
 from .hookspecs import hookimpl
 from .manager import effects, identifiers
 from .metrics import fit, fit_table
-from .mpc import InputTarget, LinearMPC, NoiseCovariance, NonlinearMPC, StepResult
+from .mpc import (
+    Bounds,
+    Estimator,
+    InputTarget,
+    LinearMPC,
+    NoiseCovariance,
+    NonlinearMPC,
+    Solver,
+    StepResult,
+    Weights,
+)
 from .predict import predict
 from .schema import ARX, Block, Model, Provenance, Signal, SparseMap, StateSpace
 from .simulate import simulate, simulate_dataset
@@ -34,8 +45,10 @@ _compat.install()  # the old module paths of 0.1, for one release
 __all__ = [
     "ARX",
     "Block",
+    "Bounds",
     "DataError",
     "Dataset",
+    "Estimator",
     "Experiment",
     "FMUError",
     "Factor",
@@ -45,16 +58,19 @@ __all__ = [
     "NoiseCovariance",
     "NonlinearMPC",
     "OptionError",
+    "OutputError",
     "PluginError",
     "Provenance",
     "SchemaError",
     "Signal",
     "SimulationError",
+    "Solver",
     "SparseMap",
     "StateSpace",
     "StepResult",
     "TendonkitError",
     "Term",
+    "Weights",
     "__version__",
     "effects",
     "fit",

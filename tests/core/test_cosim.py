@@ -18,7 +18,7 @@ from tendonkit.cli import main
 from tendonkit.errors import FMUError, OptionError
 from tendonkit.fmu.build import build_plant_fmu
 from tendonkit.fmu.plant import Plant, PlantConfig
-from tendonkit.mpc import InputTarget, LinearMPC, NonlinearMPC, StepResult
+from tendonkit.mpc import Bounds, InputTarget, LinearMPC, NonlinearMPC, StepResult, Weights
 from tendonkit.mpc.examples import tendon_sparse_map, two_mode_model
 from tendonkit.mpc.nonlinear import SparseMapDynamics
 from tendonkit.realize import to_state_space
@@ -316,10 +316,16 @@ def test_input_target_anchors_the_pair_sums():
     model = two_mode_model(coupling=0.0)
     u0 = np.array([125.0, 125.0, 125.0, 125.0])  # pair sums 250 N
     ref = np.array([[0.1, -0.05]])
-    free, _ = _closed_loop(LinearMPC(model, horizon=10, R=1e-4), model, ref, 80, u0)
+    free, _ = _closed_loop(
+        LinearMPC(model, horizon=10, weights=Weights(R=0.0001)), model, ref, 80, u0
+    )
     target = InputTarget(1e-3 * PAIR_SUMS.T @ PAIR_SUMS, 105.0)
     held, y = _closed_loop(
-        LinearMPC(model, horizon=10, R=1e-4, input_target=target), model, ref, 80, u0
+        LinearMPC(model, horizon=10, weights=Weights(R=0.0001, input_target=target)),
+        model,
+        ref,
+        80,
+        u0,
     )
     # 1e-6 rad: exact model, offset-free, 80 steps of a well-damped loop
     np.testing.assert_allclose(y, ref[0], atol=1e-6)
@@ -331,13 +337,21 @@ def test_du_max_limits_every_move():
     model = two_mode_model()
     u0 = np.full(4, 105.0)
     ref = np.array([[0.2, -0.2]])
-    fast, _ = _closed_loop(LinearMPC(model, horizon=10, R=1e-4), model, ref, 40, u0)
-    limited, _ = _closed_loop(LinearMPC(model, horizon=10, R=1e-4, du_max=2.0), model, ref, 40, u0)
+    fast, _ = _closed_loop(
+        LinearMPC(model, horizon=10, weights=Weights(R=0.0001)), model, ref, 40, u0
+    )
+    limited, _ = _closed_loop(
+        LinearMPC(model, horizon=10, weights=Weights(R=0.0001), bounds=Bounds(du_max=2.0)),
+        model,
+        ref,
+        40,
+        u0,
+    )
     moves = np.abs(np.diff(np.vstack([u0, limited]), axis=0))
     assert moves.max() <= 2.0 + 1e-6  # solver tolerance on the scaled inputs
     assert np.abs(np.diff(np.vstack([u0, fast]), axis=0)).max() > 10.0  # the limit is active
     with pytest.raises(OptionError, match="du_max"):
-        LinearMPC(model, du_max=0.0)
+        LinearMPC(model, bounds=Bounds(du_max=0.0))
 
 
 def test_linearising_along_the_plan_or_a_rollout_tracks_alike():
@@ -345,7 +359,7 @@ def test_linearising_along_the_plan_or_a_rollout_tracks_alike():
     ref = np.array([[0.15, -0.1]])
     finals = []
     for how in ("plan", "rollout"):
-        ctrl = NonlinearMPC(model, horizon=10, R=1e-4, linearize_along=how)
+        ctrl = NonlinearMPC(model, horizon=10, linearize_along=how, weights=Weights(R=0.0001))
         ctrl.reset(np.full(4, 105.0), np.zeros(2))
         dyn = SparseMapDynamics(model)
         z = dyn.initial_state(np.zeros(2), np.full(4, 105.0))

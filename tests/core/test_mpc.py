@@ -15,7 +15,16 @@ import numpy as np
 import pytest
 
 from tendonkit.errors import DataError, OptionError
-from tendonkit.mpc import LinearMPC, NoiseCovariance, NonlinearMPC, StepResult
+from tendonkit.mpc import (
+    Bounds,
+    Estimator,
+    LinearMPC,
+    NoiseCovariance,
+    NonlinearMPC,
+    Solver,
+    StepResult,
+    Weights,
+)
 from tendonkit.mpc.examples import tendon_sparse_map, two_mode_model
 from tendonkit.mpc.nonlinear import SparseMapDynamics
 from tendonkit.realize import to_state_space
@@ -91,12 +100,12 @@ def robot():
 
 
 def test_step_and_smooth_reference_are_tracked(robot):
-    ctrl = LinearMPC(robot, R=1e-3)
+    ctrl = LinearMPC(robot, weights=Weights(R=0.001))
     Y, U, _ = closed_loop(ctrl, LinearPlant(robot), step_ref())
     # Exact model, no noise: the step is reached to solver accuracy within 2 s.
     assert np.max(np.abs(Y[-20:] - [0.4, -0.3])) < 1e-4
     ref = sine_ref()
-    ctrl = LinearMPC(robot, R=1e-4)
+    ctrl = LinearMPC(robot, weights=Weights(R=0.0001))
     Y, U, res = closed_loop(ctrl, LinearPlant(robot), ref)
     # With preview the smooth reference is followed closely once the loop has started
     # (measured 0.004 rad rms; the rest is the price of input moves at R = 1e-4).
@@ -108,7 +117,7 @@ def test_step_and_smooth_reference_are_tracked(robot):
 @pytest.mark.parametrize("disturbance", ["output", "input"])
 def test_offset_free_with_gain_mismatch_and_bias(robot, disturbance):
     # The plant's gain is 30 % higher than the model's and its outputs read 0.05 rad high.
-    ctrl = LinearMPC(robot, R=1e-3, disturbance=disturbance)
+    ctrl = LinearMPC(robot, weights=Weights(R=0.001), estimator=Estimator(disturbance=disturbance))
     Y, _, _ = closed_loop(ctrl, LinearPlant(robot, gain=1.3, bias=0.05), step_ref(200))
     assert np.max(np.abs(Y[-10:] - [0.4, -0.3])) < 1e-4
     # The disturbance estimate explains the mismatch (0.05 rad bias plus 30 % of the step).
@@ -116,7 +125,7 @@ def test_offset_free_with_gain_mismatch_and_bias(robot, disturbance):
 
 
 def test_without_disturbance_model_an_offset_remains(robot):
-    ctrl = LinearMPC(robot, R=1e-3, disturbance="none")
+    ctrl = LinearMPC(robot, weights=Weights(R=0.001), estimator=Estimator(disturbance="none"))
     Y, _, _ = closed_loop(ctrl, LinearPlant(robot, gain=1.3, bias=0.05), step_ref(200))
     assert np.max(np.abs(Y[-10:] - [0.4, -0.3])) > 0.05
 
@@ -128,7 +137,11 @@ def test_inputs_within_bounds_and_soft_output_bound_keeps_feasibility(robot):
     # The reference (1.3 rad) lies outside the soft bound y_max = 0.5 rad, and the plant starts
     # outside it too (0.8 rad): every step must still solve, and the bound must be respected
     # up to what the slack penalty allows.
-    ctrl = LinearMPC(robot, R=1e-4, u_min=30.0, u_max=180.0, y_min=-0.5, y_max=0.5)
+    ctrl = LinearMPC(
+        robot,
+        weights=Weights(R=0.0001),
+        bounds=Bounds(u_min=30.0, u_max=180.0, y_min=-0.5, y_max=0.5),
+    )
     plant = LinearPlant(robot)
     plant.x = plant.x + np.linalg.pinv(plant.C) @ np.array([0.8, 0.0])
     ref = np.tile([1.3, -1.3], (120, 1))
@@ -140,7 +153,9 @@ def test_inputs_within_bounds_and_soft_output_bound_keeps_feasibility(robot):
 
 
 def test_unreachable_reference_saturates_inputs_without_failure(robot):
-    ctrl = LinearMPC(robot, R=1e-4, horizon=10, y_min=-np.inf, y_max=np.inf)
+    ctrl = LinearMPC(
+        robot, horizon=10, weights=Weights(R=0.0001), bounds=Bounds(y_min=-np.inf, y_max=np.inf)
+    )
     _Y, U, _ = closed_loop(ctrl, LinearPlant(robot), np.tile([3.0, -3.0], (60, 1)))
     assert ctrl.n_fallbacks == 0
     assert np.all(U >= 20.0) and np.all(U <= 190.0)
@@ -151,9 +166,11 @@ def test_unreachable_reference_saturates_inputs_without_failure(robot):
 
 
 def test_problems_are_dpp(robot):
-    assert LinearMPC(robot, horizon=5, fast=False).problem.is_dpp()
-    assert LinearMPC(robot, horizon=5, fast=False, formulation="condensed").problem.is_dpp()
-    assert NonlinearMPC(tendon_sparse_map(), horizon=5, fast=False).problem.is_dpp()
+    assert LinearMPC(robot, horizon=5, solver=Solver(fast=False)).problem.is_dpp()
+    assert LinearMPC(
+        robot, horizon=5, solver=Solver(fast=False, formulation="condensed")
+    ).problem.is_dpp()
+    assert NonlinearMPC(tendon_sparse_map(), horizon=5, solver=Solver(fast=False)).problem.is_dpp()
 
 
 @pytest.mark.parametrize("solver", ["clarabel", "osqp"])
@@ -168,18 +185,28 @@ def test_design_and_fast_paths_give_the_same_inputs(robot, solver):
 
 def test_nonlinear_design_and_fast_paths_give_the_same_inputs():
     model, ref = tendon_sparse_map(), sine_ref(60)
-    _, U_fast, _ = closed_loop(NonlinearMPC(model, R=1e-3, horizon=10), MapPlant(model), ref)
+    _, U_fast, _ = closed_loop(
+        NonlinearMPC(model, horizon=10, weights=Weights(R=0.001)), MapPlant(model), ref
+    )
     _, U_cvx, _ = closed_loop(
-        NonlinearMPC(model, R=1e-3, horizon=10, fast=False), MapPlant(model), ref
+        NonlinearMPC(model, horizon=10, weights=Weights(R=0.001), solver=Solver(fast=False)),
+        MapPlant(model),
+        ref,
     )
     np.testing.assert_allclose(U_fast, U_cvx, atol=1e-3)
 
 
 def test_condensed_and_sparse_formulations_agree(robot):
     ref = step_ref(40)
-    _, U_s, _ = closed_loop(LinearMPC(robot, formulation="sparse", R=1e-3), LinearPlant(robot), ref)
+    _, U_s, _ = closed_loop(
+        LinearMPC(robot, solver=Solver(formulation="sparse"), weights=Weights(R=0.001)),
+        LinearPlant(robot),
+        ref,
+    )
     _, U_c, _ = closed_loop(
-        LinearMPC(robot, formulation="condensed", R=1e-3), LinearPlant(robot), ref
+        LinearMPC(robot, solver=Solver(formulation="condensed"), weights=Weights(R=0.001)),
+        LinearPlant(robot),
+        ref,
     )
     # Same optimum, different KKT systems: agreement to the solver tolerance.
     np.testing.assert_allclose(U_s, U_c, atol=1e-3)
@@ -209,13 +236,13 @@ def _exact_arx(model: Model) -> Model:
 def test_arx_model_is_realized_reduced_and_controls_like_its_state_space(robot):
     arx = _exact_arx(robot)
     ref = step_ref(60)
-    ctrl_arx = LinearMPC(arx, R=1e-3)
+    ctrl_arx = LinearMPC(arx, weights=Weights(R=0.001))
     assert ctrl_arx.prediction.n_realized == 12 and ctrl_arx.n_states == 4  # minreal
     _, U_arx, _ = closed_loop(ctrl_arx, LinearPlant(robot), ref)
-    _, U_ss, _ = closed_loop(LinearMPC(robot, R=1e-3), LinearPlant(robot), ref)
+    _, U_ss, _ = closed_loop(LinearMPC(robot, weights=Weights(R=0.001)), LinearPlant(robot), ref)
     # Same input-output model and a consistent initial state: the same inputs.
     np.testing.assert_allclose(U_arx, U_ss, atol=1e-3)
-    unreduced = LinearMPC(arx, R=1e-3, reduce="none", horizon=5)
+    unreduced = LinearMPC(arx, reduce="none", horizon=5, weights=Weights(R=0.001))
     assert unreduced.n_states == 12
 
 
@@ -223,7 +250,7 @@ def test_balanced_truncation_still_tracks_offset_free():
     from tendonkit.mpc.examples import random_tendon_model
 
     truth = random_tendon_model(8, seed=0)
-    ctrl = LinearMPC(truth, R=1e-3, reduce=4)
+    ctrl = LinearMPC(truth, reduce=4, weights=Weights(R=0.001))
     assert ctrl.n_states == 4 and ctrl.prediction.n_realized == 8
     Y, _, _ = closed_loop(ctrl, LinearPlant(truth), step_ref(120, value=(0.3, -0.2)))
     # The truncation error is a model/plant mismatch, which the disturbance model removes.
@@ -234,7 +261,7 @@ def test_input_delay_blocks_are_realized(robot):
     delayed = robot.replace(
         input_blocks=tuple(Block("delay", f"F{i}", {"samples": 2.0}) for i in range(1, 5))
     )
-    ctrl = LinearMPC(delayed, R=1e-3)
+    ctrl = LinearMPC(delayed, weights=Weights(R=0.001))
     plant = LinearPlant(delayed)
     Y, _, _ = closed_loop(ctrl, plant, step_ref(120))
     assert np.max(np.abs(Y[-10:] - [0.4, -0.3])) < 1e-3
@@ -253,7 +280,7 @@ def test_subset_of_signals_and_measurement_mapping(robot):
             A=ss.A[:2, :2], B=ss.B[:2, [0, 2]], C=ss.C[:1, :2], D=np.zeros((1, 2))
         ),
     )
-    ctrl = LinearMPC(sub, R=1e-3, horizon=10)
+    ctrl = LinearMPC(sub, horizon=10, weights=Weights(R=0.001))
     ctrl.reset([105.0, 105.0], {"q1": 0.0, "q2": 0.3})
     res = ctrl.step({"q1": 0.0, "q2": 0.3, "x": 1.0}, [[0.2]])
     assert res.u.shape == (2,) and set(res.as_dict()) == {"F1", "F3"}
@@ -274,7 +301,14 @@ def test_nonlinear_models_and_blocks_are_refused_by_the_linear_mpc(robot):
 
 def test_invalid_options_are_all_reported(robot):
     with pytest.raises(OptionError) as err:
-        LinearMPC(robot, horizon=0, u_min=200, solver="gurobi", disturbance="integral", R=-1)
+        LinearMPC(
+            robot,
+            horizon=0,
+            bounds=Bounds(u_min=200),
+            solver=Solver(name="gurobi"),
+            estimator=Estimator(disturbance="integral"),
+            weights=Weights(R=-1),
+        )
     text = str(err.value)
     for word in ("horizon", "u_min", "solver", "disturbance", "R must"):
         assert word in text
@@ -302,9 +336,11 @@ def _linearization(model: Model) -> Model:
 def test_nonlinear_mpc_tracks_and_beats_linear_mpc_on_its_linearization():
     model = tendon_sparse_map(bend=1.5)
     ref = sine_ref(250)
-    nmpc = NonlinearMPC(model, R=1e-4)
+    nmpc = NonlinearMPC(model, weights=Weights(R=0.0001))
     Y_n, U_n, res = closed_loop(nmpc, MapPlant(model), ref)
-    Y_l, _, _ = closed_loop(LinearMPC(_linearization(model), R=1e-4), MapPlant(model), ref)
+    Y_l, _, _ = closed_loop(
+        LinearMPC(_linearization(model), weights=Weights(R=0.0001)), MapPlant(model), ref
+    )
     rms_n = np.sqrt(np.mean((Y_n[50:] - ref[50:]) ** 2))
     rms_l = np.sqrt(np.mean((Y_l[50:] - ref[50:]) ** 2))
     assert nmpc.n_fallbacks == 0
@@ -317,10 +353,12 @@ def test_nonlinear_mpc_tracks_and_beats_linear_mpc_on_its_linearization():
 def test_nonlinear_mpc_is_offset_free():
     model = tendon_sparse_map()
     plant_model = tendon_sparse_map(arm=0.0018, pole=0.88)  # 20 % stronger, faster plant
-    ctrl = NonlinearMPC(model, R=1e-3)
+    ctrl = NonlinearMPC(model, weights=Weights(R=0.001))
     Y, _, _ = closed_loop(ctrl, MapPlant(plant_model, bias=0.04), step_ref(200, value=(0.5, -0.4)))
     assert np.max(np.abs(Y[-10:] - [0.5, -0.4])) < 1e-4
-    free = NonlinearMPC(model, R=1e-3, disturbance="none", horizon=10)
+    free = NonlinearMPC(
+        model, horizon=10, weights=Weights(R=0.001), estimator=Estimator(disturbance="none")
+    )
     Y, _, _ = closed_loop(free, MapPlant(plant_model, bias=0.04), step_ref(200, value=(0.5, -0.4)))
     assert np.max(np.abs(Y[-10:] - [0.5, -0.4])) > 0.02
 
@@ -374,7 +412,12 @@ def test_sparse_map_dynamics_match_simulation_and_jacobians_are_exact():
 
 def test_nonlinear_mpc_controls_a_lagged_map():
     model = _lagged_map()
-    ctrl = NonlinearMPC(model, R=1e-3, horizon=12, u_min=-10, u_max=10, y_min=-2, y_max=2)
+    ctrl = NonlinearMPC(
+        model,
+        horizon=12,
+        weights=Weights(R=0.001),
+        bounds=Bounds(u_min=-10, u_max=10, y_min=-2, y_max=2),
+    )
     plant = MapPlant(model)
     ctrl.reset(np.zeros(2), plant.output())
     for _k in range(150):
@@ -387,7 +430,12 @@ def test_nonlinear_mpc_controls_a_lagged_map():
 
 
 def test_forced_solver_failure_holds_the_last_input(robot):
-    ctrl = LinearMPC(robot, R=1e-3, horizon=10, failure_hook=lambda k: k in (20, 21, 22))
+    ctrl = LinearMPC(
+        robot,
+        horizon=10,
+        weights=Weights(R=0.001),
+        solver=Solver(failure_hook=lambda k: k in (20, 21, 22)),
+    )
     _, U, res = closed_loop(ctrl, LinearPlant(robot), step_ref(60))
     assert ctrl.n_fallbacks == 3
     assert [r.fallback for r in res].count(True) == 3
@@ -398,7 +446,7 @@ def test_forced_solver_failure_holds_the_last_input(robot):
 
 
 def test_solver_exceptions_and_bad_measurements_fall_back(robot, monkeypatch):
-    ctrl = LinearMPC(robot, R=1e-3, horizon=5)
+    ctrl = LinearMPC(robot, horizon=5, weights=Weights(R=0.001))
     ctrl.reset(U0, np.zeros(2))
     first = ctrl.step(np.zeros(2), [[0.2, 0.0]])
 
@@ -417,7 +465,7 @@ def test_solver_exceptions_and_bad_measurements_fall_back(robot, monkeypatch):
 
 
 def test_reference_is_padded_and_checked(robot):
-    ctrl = LinearMPC(robot, horizon=8, R=1e-3)
+    ctrl = LinearMPC(robot, horizon=8, weights=Weights(R=0.001))
     res = ctrl.step(np.zeros(2), np.array([[0.1, 0.1], [0.2, 0.2]]))  # resets itself
     assert res.predicted_y is not None and res.predicted_y.shape == (8, 2)
     assert not res.fallback
@@ -432,8 +480,63 @@ def test_noise_model_with_innovation_gain_is_used(robot):
 
     K = kalman_gain(ss.A, ss.C, 1e-3 * np.eye(4), 1e-4 * np.eye(2))
     with_k = robot.replace(representation=replace(ss, K=K))
-    ctrl = LinearMPC(with_k, R=1e-3, disturbance="none", reduce="none")
+    ctrl = LinearMPC(
+        with_k, reduce="none", weights=Weights(R=0.001), estimator=Estimator(disturbance="none")
+    )
     # Without disturbances the predictor gain is the model's own K.
     np.testing.assert_allclose(ctrl._L, K, atol=1e-8)
     Y, _, _ = closed_loop(ctrl, LinearPlant(with_k), step_ref(80))
     assert np.max(np.abs(Y[-5:] - [0.4, -0.3])) < 1e-3
+
+
+# -- option objects and the keywords of 0.1 ------------------------------------------------------
+
+
+def test_keywords_of_0_1_give_the_same_controller_with_one_warning(robot):
+    new = LinearMPC(
+        robot,
+        horizon=8,
+        weights=Weights(R=0.01, slack=(100.0, 10.0)),
+        bounds=Bounds(u_min=30.0, u_max=180.0, du_max=5.0),
+        estimator=Estimator(disturbance="input", noise=NoiseCovariance(1e-3, 1e-4, 1e-5)),
+        solver=Solver(name="osqp", formulation="condensed"),
+    )
+    with pytest.warns(DeprecationWarning, match="keyword form of tendonkit 0.1") as record:
+        old = LinearMPC(
+            robot, horizon=8, R=0.01, slack_weight=(100.0, 10.0), u_min=30.0, u_max=180.0,
+            du_max=5.0, disturbance="input", noise=NoiseCovariance(1e-3, 1e-4, 1e-5),
+            solver="osqp", formulation="condensed",
+        )  # fmt: skip
+    assert len([w for w in record if w.category is DeprecationWarning]) == 1
+    assert old.options == new.options
+    ref = step_ref()
+    _, U_new, _ = closed_loop(new, LinearPlant(robot), ref)
+    _, U_old, _ = closed_loop(old, LinearPlant(robot), ref)
+    np.testing.assert_array_equal(U_new, U_old)
+
+
+def test_option_mistakes_are_listed_together(robot):
+    with pytest.raises(OptionError) as info:
+        LinearMPC(robot, bounds=Bounds(u_min=0.0), u_max=1.0, horizn=5, weights={"R": 1})
+    text = str(info.value)
+    assert "u_max is given both as a keyword and in bounds=" in text
+    assert "unknown keyword horizn" in text
+    assert "weights must be a Weights, found dict" in text
+    with pytest.raises(OptionError, match="formulation applies to LinearMPC only"):
+        NonlinearMPC(tendon_sparse_map(), solver=Solver(formulation="sparse"))
+    with pytest.raises(OptionError, match="unknown keyword formulation"):
+        NonlinearMPC(tendon_sparse_map(), formulation="sparse")
+
+
+def test_option_values_are_checked_against_the_model(robot):
+    with pytest.raises(OptionError) as info:
+        LinearMPC(
+            robot,
+            bounds=Bounds(u_min=[1.0, 2.0], u_max=0.0),
+            estimator=Estimator(disturbance="state"),
+            solver=Solver(name="gurobi"),
+        )
+    text = str(info.value)
+    assert (
+        "u_min" in text and "disturbance must be one of" in text and "solver must be one of" in text
+    )

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from conftest import REAL_DATA
 
-from tendonkit.cli.app import render_diagnosis
+from tendonkit.cli.diagnose import render_diagnosis
 from tendonkit.dataset import Dataset, Experiment
 from tendonkit.diagnose import Diagnosis, diagnose
 from tendonkit.diagnose.report import write_report

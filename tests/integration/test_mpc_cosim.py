@@ -72,7 +72,7 @@ import tendonkit as tk
 from tendonkit.dataset import Dataset
 from tendonkit.fmu.build import build_plant_fmu
 from tendonkit.fmu.plant import PlantConfig
-from tendonkit.mpc import LinearMPC
+from tendonkit.mpc import LinearMPC, Solver
 from tendonkit.robot.collect import collect
 from tendonkit.robot.cosim import (
     ControllerSettings,
@@ -211,7 +211,7 @@ def test_forced_solver_failures_are_reported_and_the_loop_goes_on(plant):
 def test_a_failing_solver_holds_the_input(plant):
     """A genuine solver failure (Clarabel stopped after one iteration) on every step."""
     ref = make_reference("petal", speed=0.08, duration=3.0)
-    ctrl = LinearMPC(plant.models["linear"], horizon=10, solver_options={"max_iter": 1})
+    ctrl = LinearMPC(plant.models["linear"], horizon=10, solver=Solver(options={"max_iter": 1}))
     res = run(plant.fmu, ref, ctrl, parameters=plant.parameters)
     s = res.summary()
     assert s["fallbacks"] == len(ref.t) and s["input_bound_violations"] == 0

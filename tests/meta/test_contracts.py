@@ -1,12 +1,9 @@
-"""Architecture contracts: import rules, documented hooks, public API."""
+"""Architecture contracts: documented hooks, public API, an instant ``--help``."""
 
 from __future__ import annotations
 
-import ast
 import inspect
 from pathlib import Path
-
-import pytest
 
 import tendonkit
 from tendonkit import hookspecs
@@ -14,42 +11,7 @@ from tendonkit import hookspecs
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def _imports(path: Path, top_level_only: bool = False) -> set[str]:
-    tree = ast.parse(path.read_text())
-    nodes = tree.body if top_level_only else list(ast.walk(tree))
-    names: set[str] = set()
-    for node in nodes:
-        if isinstance(node, ast.Import):
-            names |= {a.name for a in node.names}
-        elif isinstance(node, ast.ImportFrom) and node.module:
-            names.add(node.module)
-    return names
-
-
-def _files(folder: str) -> list[Path]:
-    return sorted((ROOT / folder).glob("*.py"))
-
-
-@pytest.mark.parametrize("path", _files("toolkit"), ids=lambda p: p.name)
-def test_core_imports_neither_plugins_nor_fmu(path):
-    # The CLI modules may import the FMU side lazily (inside functions), never at top level.
-    lazy_ok = path.name.startswith("cli") or path.name == "demo.py"
-    names = _imports(path, top_level_only=lazy_ok)
-    bad = {n for n in names if n.startswith(("tendonkit.plugins", "tendonkit.fmu"))}
-    if not lazy_ok:
-        bad |= {n for n in names if n.startswith("tendonkit.fmu")}
-    assert not bad, f"{path.name} imports {sorted(bad)}"
-
-
-@pytest.mark.parametrize("path", _files("plugins"), ids=lambda p: p.name)
-def test_identifiers_import_no_fmu_or_mpc(path):
-    names = _imports(path)
-    bad = {
-        n
-        for n in names
-        if n.startswith(("tendonkit.fmu", "tendonkit.mpc", "tendonkit.robot.cosim"))
-    }
-    assert not bad, f"{path.name} imports {sorted(bad)}"
+# The import rules of the rooms are tests/meta/test_rooms.py (checkers in tests/meta/rooms.py).
 
 
 def test_every_hook_is_documented_and_tested():
@@ -78,3 +40,27 @@ def test_heavy_libraries_are_not_imported_by_the_cli_module():
     code = "import sys, tendonkit.cli; print(sorted(m for m in ('cvxpy','pysindy','fmpy','pythonfmu','control','matplotlib') if m in sys.modules))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
+
+
+#: tendonkit 0.1's public API and commands: the move into rooms kept every one of them.
+API_0_1 = [
+    "ARX", "Block", "DataError", "Dataset", "Experiment", "FMUError", "Factor", "InputTarget",
+    "LinearMPC", "Model", "NoiseCovariance", "NonlinearMPC", "OptionError", "PluginError",
+    "Provenance", "SchemaError", "Signal", "SimulationError", "SparseMap", "StateSpace",
+    "StepResult", "TendonkitError", "Term", "__version__", "effects", "fit", "fit_table",
+    "hookimpl", "identifiers", "identify", "predict", "simulate", "simulate_dataset",
+]  # fmt: skip
+COMMANDS_0_1 = {
+    "identify", "simulate", "compare", "diagnose", "plugins", "demo", "plant", "collect",
+    "export", "mpc",
+}  # fmt: skip
+
+
+def test_the_0_1_public_api_and_commands_are_all_still_there():
+    assert set(API_0_1) <= set(tendonkit.__all__)
+    for name in API_0_1:
+        assert getattr(tendonkit, name) is not None
+    from tendonkit.cli.app import build_parser
+
+    sub = next(a for a in build_parser()._actions if a.dest == "command")
+    assert set(sub.choices) == COMMANDS_0_1

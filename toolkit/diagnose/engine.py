@@ -43,6 +43,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -71,7 +72,7 @@ from .findings import (
     _ambiguity,
     _mean,
 )
-from .residuals import analyse
+from .residuals import ResidualAnalysis, analyse
 from .stats import holm, loss_test
 
 FloatArray = NDArray[np.float64]
@@ -156,148 +157,268 @@ def diagnose(
     # lazy: heavy (tqdm)
     from tqdm import tqdm
 
-    problems = []
-    if not 0 < alpha < 0.5:
-        problems.append(f"alpha must be in (0, 0.5), found {alpha}.")
-    if not 0 <= min_relative_gain < 1:
-        problems.append(f"min_relative_gain must be in [0, 1), found {min_relative_gain}.")
-    if not (isinstance(min_gain, int | float) and 0 <= min_gain < 100):
-        problems.append(f"min_gain must be a number of points in [0, 100), found {min_gain!r}.")
-    if not 0 < tie_ratio <= 1:
-        problems.append(f"tie_ratio must be in (0, 1], found {tie_ratio}.")
+    registry = effect_registry()
+    settings = Settings(
+        alpha=alpha,
+        min_relative_gain=min_relative_gain,
+        min_gain=min_gain,
+        tie_ratio=tie_ratio,
+        seed=seed,
+        effects=tuple(effects) if effects is not None else tuple(registry.names()),
+        options=dict(options or {}),
+        fallback=fallback,
+    )
+    problems = settings.problems(registry.names())
     if (train.inputs, train.outputs) != (valid.inputs, valid.outputs):
         problems.append(
             f"training and validation data differ in signals: {train.inputs}->{train.outputs} "
             f"vs {valid.inputs}->{valid.outputs}."
         )
-    if (options or {}).get("criterion") == "simulation":
-        problems.append(
-            "criterion 'simulation': diagnose re-estimates every extension by "
-            "least squares, so the baseline must be estimated the same way (criterion "
-            "'equation'); an output-error baseline would credit the extensions with the change "
-            "of criterion instead of their cause."
-        )
-    registry = effect_registry()
-    names = list(effects) if effects is not None else registry.names()
-    unknown = [n for n in names if n not in registry.names()]
-    if unknown:
-        problems.append(f"unknown effects {unknown}; registered: {registry.names()}.")
     if problems:
         raise OptionError("diagnose cannot run:", problems)
-    identifier = identifiers().get(method).create(**(options or {}))
-    baseline = identifier.identify(train)
-    check = check_baseline(baseline, train, method)
-    if check is not None:
-        check["fallback"] = bool(fallback and check["biased"])
-        if check["fallback"]:
-            method, identifier, baseline = "n4sid", check.pop("_identifier"), check.pop("_model")
-        check.pop("_identifier", None)
-        check.pop("_model", None)
-    y_valid = aligned(baseline, valid).y
-    base_sim = simulate_all(baseline, valid)
-    base_fit = {n: float(v) for n, v in zip(baseline.output_names, fit(y_valid, base_sim))}
-    base_loss = _loss(y_valid, base_sim)
+    base = choose_baseline(train, method, settings)
+    ref = score_baseline(base.model, valid)
     ctx = Context(
         train=train,
-        baseline=baseline,
-        identifier=identifier,
-        residuals=analyse(baseline, train),
+        baseline=base.model,
+        identifier=base.identifier,
+        residuals=analyse(base.model, train),
         seed=seed,
     )
-    valid_res = analyse(baseline, valid)
-    delta = float(min_relative_gain)
-    raw: list[dict[str, Any]] = []
-    losses: dict[str, FloatArray] = {}
+    trials: list[Trial] = []
     skipped: list[dict[str, str]] = []
-    for name in tqdm(names, desc="diagnose", disable=not progress, unit="effect"):
-        effect = registry.get(name)
-        try:
-            ext = effect.extend(ctx)
-        except (np.linalg.LinAlgError, ValueError, FloatingPointError, OverflowError) as exc:
-            skipped.append({"effect": name, "reason": f"{type(exc).__name__}: {exc}"})
-            continue
-        if ext is None:
-            skipped.append({"effect": name, "reason": "not applicable to these data"})
-            continue
-        sim = simulate_all(ext.model, valid)
-        f = fit(y_valid, sim)
-        ext_fit = {
-            n: float(v) if np.isfinite(v) else -1e300 for n, v in zip(baseline.output_names, f)
-        }
-        loss = _loss(y_valid, sim)
-        losses[name] = loss
-        rel = float(1.0 - loss.mean() / base_loss.mean()) if base_loss.mean() > 0 else 0.0
-        test = loss_test(base_loss, loss, margin=delta)
-        test_info: dict[str, Any] = {**test.to_dict(), "margin": delta}
-        p_value = test.p_value
-        direct = _direct_test(effect, ctx, ext, valid)
-        if direct is not None:
-            # Two routes to the same finding: Bonferroni over them keeps its level.
-            p_value = min(1.0, 2.0 * min(test.p_value, direct["p_value"]))
-            test_info.update(loss_p_value=test.p_value, direct=direct)
-        gain = _mean(ext_fit) - _mean(base_fit) if np.all(np.isfinite(f)) else -math.inf
-        evidence = effect.signature(ctx, baseline, valid, valid_res) or {}
-        raw.append(
-            {
-                "cause": effect.cause,
-                "effect": name,
-                "gain": float(gain),
-                "fit": ext_fit,
-                "relative_gain": rel,
-                "p_value": p_value,
-                "params": ext.params,
-                "evidence": evidence,
-                "description": ext.description,
-                "model": ext.model,
-                "n_params": ext.n_params - added_parameters(baseline),
-                "test": {**test_info, "train_gain": ext.train_gain},
-                "train_gain": ext.train_gain,
-            }
-        )
-    # Weighted Holm: the weights come from the *training* gains (fixed before the validation
-    # data are looked at), so the effects that found structure in the training data get most
-    # of the error budget α, and an extension that did not improve the training fit cannot
-    # name a cause.
-    adjusted = holm(
-        [r["p_value"] for r in raw], [max(r["train_gain"], 0.0) for r in raw] if raw else None
-    )
-    findings = [
-        Finding(
-            **{k: v for k, v in r.items() if k != "train_gain"},
-            p_adjusted=p_adj,
-            significant=bool(p_adj < alpha and r["gain"] > 0 and r["gain"] >= min_gain),
-        )
-        for r, p_adj in zip(raw, adjusted)
-    ]
-    findings.sort(key=lambda f: f.gain, reverse=True)
-    best = _name_cause(findings, losses, alpha, tie_ratio)
-    findings = [_with_training_fit(f, train) for f in findings]
-    if best is not None:
-        best = next(f for f in findings if f.effect == best.effect)
-    ambiguous = _ambiguity(findings, best, losses, tie_ratio, alpha) if best else None
-    return Diagnosis(
-        cause=best.cause if best else "none",
-        baseline_method=method,
-        baseline=baseline,
-        baseline_fit=base_fit,
-        findings=tuple(findings),
-        residuals=valid_res,
-        ambiguous=ambiguous,
-        settings={
-            "alpha": alpha,
-            "min_relative_gain": min_relative_gain,
-            "min_gain": min_gain,
-            "tie_ratio": tie_ratio,
-            "seed": seed,
-            "effects": names,
-            "options": dict(options or {}),
+    for name in tqdm(settings.effects, desc="diagnose", disable=not progress, unit="effect"):
+        outcome = try_effect(registry.get(name), name, ctx, ref, valid, settings)
+        if isinstance(outcome, Trial):
+            trials.append(outcome)
+        else:
+            skipped.append({"effect": name, "reason": outcome})
+    findings = adjust(trials, settings)
+    return conclude(findings, trials, base, ref, train, settings, skipped)
+
+
+# -- the stages -----------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Settings:
+    """The options of one diagnosis (see :func:`diagnose`)."""
+
+    alpha: float
+    min_relative_gain: float
+    min_gain: float
+    tie_ratio: float
+    seed: int
+    effects: tuple[str, ...]
+    options: dict[str, Any]
+    fallback: bool
+
+    def problems(self, registered: Sequence[str]) -> list[str]:
+        """Every reason these settings cannot run."""
+        p = []
+        if not 0 < self.alpha < 0.5:
+            p.append(f"alpha must be in (0, 0.5), found {self.alpha}.")
+        if not 0 <= self.min_relative_gain < 1:
+            p.append(f"min_relative_gain must be in [0, 1), found {self.min_relative_gain}.")
+        if not (isinstance(self.min_gain, int | float) and 0 <= self.min_gain < 100):
+            p.append(f"min_gain must be a number of points in [0, 100), found {self.min_gain!r}.")
+        if not 0 < self.tie_ratio <= 1:
+            p.append(f"tie_ratio must be in (0, 1], found {self.tie_ratio}.")
+        if self.options.get("criterion") == "simulation":
+            p.append(
+                "criterion 'simulation': diagnose re-estimates every extension by "
+                "least squares, so the baseline must be estimated the same way (criterion "
+                "'equation'); an output-error baseline would credit the extensions with the "
+                "change of criterion instead of their cause."
+            )
+        unknown = [n for n in self.effects if n not in registered]
+        if unknown:
+            p.append(f"unknown effects {unknown}; registered: {list(registered)}.")
+        return p
+
+    def to_dict(self) -> dict[str, Any]:
+        """The settings as reported in :attr:`Diagnosis.settings`."""
+        return {
+            "alpha": self.alpha,
+            "min_relative_gain": self.min_relative_gain,
+            "min_gain": self.min_gain,
+            "tie_ratio": self.tie_ratio,
+            "seed": self.seed,
+            "effects": list(self.effects),
+            "options": dict(self.options),
             "test": "one-sided t-test over batches of log((1 - min_relative_gain) L_base / "
             "L_ext), batches of 4 autocorrelation times; Holm adjustment over the effects "
             "tried, weighted by their training gains",
-        },
+        }
+
+
+@dataclass(frozen=True)
+class Baseline:
+    """The baseline diagnose extends: its method, identifier options, model and check."""
+
+    method: str
+    identifier: Any
+    model: Model
+    check: dict[str, Any] | None
+
+
+@dataclass(frozen=True)
+class Reference:
+    """The baseline on the validation data: outputs, simulation, fit, per-sample loss."""
+
+    y: FloatArray
+    sim: FloatArray
+    fit: dict[str, float]
+    loss: FloatArray
+    residuals: ResidualAnalysis
+
+
+@dataclass(frozen=True)
+class Trial:
+    """One effect tried: its extension scored on the validation data (before adjustment)."""
+
+    cause: str
+    effect: str
+    gain: float
+    fit: dict[str, float]
+    relative_gain: float
+    p_value: float
+    params: dict[str, Any]
+    evidence: dict[str, Any]
+    description: str
+    model: Model
+    n_params: int
+    test: dict[str, Any]
+    train_gain: float
+    loss: FloatArray
+
+
+def choose_baseline(train: Dataset, method: str, settings: Settings) -> Baseline:
+    """Identify the baseline on ``train``; fall back to N4SID when it is grossly biased."""
+    identifier = identifiers().get(method).create(**settings.options)
+    model = identifier.identify(train)
+    check = check_baseline(model, train, method)
+    if check is not None:
+        check["fallback"] = bool(settings.fallback and check["biased"])
+        if check["fallback"]:
+            method, identifier, model = "n4sid", check.pop("_identifier"), check.pop("_model")
+        check.pop("_identifier", None)
+        check.pop("_model", None)
+    return Baseline(method=method, identifier=identifier, model=model, check=check)
+
+
+def score_baseline(baseline: Model, valid: Dataset) -> Reference:
+    """The baseline's validation simulation, fit, loss and residual analysis."""
+    y = aligned(baseline, valid).y
+    sim = simulate_all(baseline, valid)
+    return Reference(
+        y=y,
+        sim=sim,
+        fit={n: float(v) for n, v in zip(baseline.output_names, fit(y, sim))},
+        loss=_loss(y, sim),
+        residuals=analyse(baseline, valid),
+    )
+
+
+def try_effect(
+    effect: Effect, name: str, ctx: Context, ref: Reference, valid: Dataset, settings: Settings
+) -> Trial | str:
+    """Extend the baseline with ``effect`` and test it on ``valid``; a string says why not."""
+    try:
+        ext = effect.extend(ctx)
+    except (np.linalg.LinAlgError, ValueError, FloatingPointError, OverflowError) as exc:
+        return f"{type(exc).__name__}: {exc}"
+    if ext is None:
+        return "not applicable to these data"
+    baseline = ctx.baseline
+    sim = simulate_all(ext.model, valid)
+    f = fit(ref.y, sim)
+    ext_fit = {n: float(v) if np.isfinite(v) else -1e300 for n, v in zip(baseline.output_names, f)}
+    loss = _loss(ref.y, sim)
+    rel = float(1.0 - loss.mean() / ref.loss.mean()) if ref.loss.mean() > 0 else 0.0
+    delta = float(settings.min_relative_gain)
+    test = loss_test(ref.loss, loss, margin=delta)
+    test_info: dict[str, Any] = {**test.to_dict(), "margin": delta}
+    p_value = test.p_value
+    direct = _direct_test(effect, ctx, ext, valid)
+    if direct is not None:
+        # Two routes to the same finding: Bonferroni over them keeps its level.
+        p_value = min(1.0, 2.0 * min(test.p_value, direct["p_value"]))
+        test_info.update(loss_p_value=test.p_value, direct=direct)
+    gain = _mean(ext_fit) - _mean(ref.fit) if np.all(np.isfinite(f)) else -math.inf
+    evidence = effect.signature(ctx, baseline, valid, ref.residuals) or {}
+    return Trial(
+        cause=effect.cause,
+        effect=name,
+        gain=float(gain),
+        fit=ext_fit,
+        relative_gain=rel,
+        p_value=p_value,
+        params=ext.params,
+        evidence=evidence,
+        description=ext.description,
+        model=ext.model,
+        n_params=ext.n_params - added_parameters(baseline),
+        test={**test_info, "train_gain": ext.train_gain},
+        train_gain=ext.train_gain,
+        loss=loss,
+    )
+
+
+def adjust(trials: Sequence[Trial], settings: Settings) -> list[Finding]:
+    """Findings with Holm-adjusted p-values, best gain first.
+
+    Weighted Holm: the weights come from the *training* gains (fixed before the validation
+    data are looked at), so the effects that found structure in the training data get most of
+    the error budget α, and an extension that did not improve the training fit cannot name a
+    cause.
+    """
+    adjusted = holm(
+        [t.p_value for t in trials], [max(t.train_gain, 0.0) for t in trials] if trials else None
+    )
+    keep = [f.name for f in dataclasses.fields(Finding)]
+    findings = [
+        Finding(
+            **{k: getattr(t, k) for k in keep if hasattr(t, k)},
+            p_adjusted=p_adj,
+            significant=bool(p_adj < settings.alpha and t.gain > 0 and t.gain >= settings.min_gain),
+        )
+        for t, p_adj in zip(trials, adjusted)
+    ]
+    findings.sort(key=lambda f: f.gain, reverse=True)
+    return findings
+
+
+def conclude(
+    findings: list[Finding],
+    trials: Sequence[Trial],
+    base: Baseline,
+    ref: Reference,
+    train: Dataset,
+    settings: Settings,
+    skipped: Sequence[dict[str, str]],
+) -> Diagnosis:
+    """Name the cause (or a tie) and assemble the :class:`Diagnosis`."""
+    losses = {t.effect: t.loss for t in trials}
+    best = _name_cause(findings, losses, settings.alpha, settings.tie_ratio)
+    findings = [_with_training_fit(f, train) for f in findings]
+    if best is not None:
+        best = next(f for f in findings if f.effect == best.effect)
+    ambiguous = (
+        _ambiguity(findings, best, losses, settings.tie_ratio, settings.alpha) if best else None
+    )
+    return Diagnosis(
+        cause=best.cause if best else "none",
+        baseline_method=base.method,
+        baseline=base.model,
+        baseline_fit=ref.fit,
+        findings=tuple(findings),
+        residuals=ref.residuals,
+        ambiguous=ambiguous,
+        settings=settings.to_dict(),
         skipped=tuple(skipped),
         named_effect=best.effect if best else None,
-        baseline_check=check,
+        baseline_check=base.check,
     )
 
 

@@ -17,8 +17,11 @@ feasible).  The predicted output ``y_k`` is sampled while ``u_{k-1}`` is applied
 feed-through ``D`` acts with the previous input).  Each step the controller holds the last
 input if the solver fails, and clips its input to the bounds.
 
-The problem is built once with cvxpy parameters (DPP).  ``fast=False`` re-solves it with
-``problem.solve``; ``fast=True`` (default) feeds cvxpy's parameter-affine problem data directly
+The settings come as four option objects (:mod:`tendonkit.mpc.options`): :class:`Weights`,
+:class:`Bounds`, :class:`Estimator` and :class:`Solver`.
+
+The problem is built once with cvxpy parameters (DPP).  ``Solver(fast=False)`` re-solves it with
+``problem.solve``; ``Solver(fast=True)`` (default) feeds cvxpy's parameter-affine problem data directly
 to a persistent Clarabel or OSQP solver; both give the same inputs.
 
 Examples
@@ -26,7 +29,8 @@ Examples
 >>> import numpy as np
 >>> from tendonkit.testsystems import random_state_space
 >>> plant = random_state_space(4, 2, 2, seed=1)
->>> mpc = LinearMPC(plant, horizon=10, u_min=-5, u_max=5, y_min=-10, y_max=10)
+>>> bounds = Bounds(u_min=-5, u_max=5, y_min=-10, y_max=10)
+>>> mpc = LinearMPC(plant, horizon=10, bounds=bounds)
 >>> mpc.reset(np.zeros(2), np.zeros(2))
 >>> res = mpc.step(np.zeros(2), np.array([[0.1, -0.1]]))
 >>> res.u.shape, bool(np.all(np.abs(res.u) <= 5)), res.fallback
@@ -38,5 +42,16 @@ from __future__ import annotations
 from .base import InputTarget, NoiseCovariance, StepResult
 from .linear import LinearMPC
 from .nonlinear import NonlinearMPC
+from .options import Bounds, Estimator, Solver, Weights
 
-__all__ = ["InputTarget", "LinearMPC", "NoiseCovariance", "NonlinearMPC", "StepResult"]
+__all__ = [
+    "Bounds",
+    "Estimator",
+    "InputTarget",
+    "LinearMPC",
+    "NoiseCovariance",
+    "NonlinearMPC",
+    "Solver",
+    "StepResult",
+    "Weights",
+]

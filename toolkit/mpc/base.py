@@ -6,7 +6,7 @@ The public names are re-exported by :mod:`tendonkit.mpc`.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -15,6 +15,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..errors import DataError, OptionError, raise_if
 from ..schema import Model
+from .options import Bounds, Estimator, Solver, Weights
 from .qp import SOLVERS, QPResult, QPSpec, TrackingQP
 
 FloatArray = NDArray[np.float64]
@@ -123,24 +124,22 @@ class _MPC:
         model: Model,
         *,
         horizon: int,
-        Q: ArrayLike | None,
-        R: ArrayLike | None,
-        Qf: ArrayLike | None,
-        u_min: ArrayLike,
-        u_max: ArrayLike,
-        y_min: ArrayLike,
-        y_max: ArrayLike,
-        slack_weight: float | tuple[float, float],
-        disturbance: str,
-        noise: NoiseCovariance | None,
-        solver: str,
-        fast: bool,
-        solver_options: Mapping[str, Any] | None,
-        failure_hook: Callable[[int], bool] | None,
+        weights: Weights,
+        bounds: Bounds,
+        estimator: Estimator,
+        solver: Solver,
         model_problems: list[str],
-        input_target: InputTarget | None = None,
-        du_max: ArrayLike = np.inf,
     ) -> None:
+        Q, R, Qf = weights.Q, weights.R, weights.Qf
+        slack_weight, input_target = weights.slack, weights.input_target
+        u_min, u_max, y_min, y_max, du_max = (
+            bounds.u_min, bounds.u_max, bounds.y_min, bounds.y_max, bounds.du_max
+        )  # fmt: skip
+        disturbance, noise = estimator.disturbance, estimator.noise
+        solver_options, failure_hook, fast = solver.options, solver.failure_hook, solver.fast
+        self.options = {"weights": weights, "bounds": bounds, "estimator": estimator}
+        self.options["solver"] = solver
+        solver_name = solver.name
         nu, ny = len(model.inputs), len(model.outputs)
         p = list(model_problems)
         if isinstance(horizon, bool) or not isinstance(horizon, int | np.integer) or horizon < 1:
@@ -175,8 +174,8 @@ class _MPC:
             p.append(
                 f"disturbance must be one of {list(self._disturbances)}, found {disturbance!r}."
             )
-        if solver not in SOLVERS:
-            p.append(f"solver must be one of {list(SOLVERS)}, found {solver!r}.")
+        if solver_name not in SOLVERS:
+            p.append(f"solver must be one of {list(SOLVERS)}, found {solver_name!r}.")
         if noise is not None and not isinstance(noise, NoiseCovariance):
             p.append(f"noise must be a NoiseCovariance, found {type(noise).__name__}.")
         raise_if(p, OptionError, f"Cannot build an MPC controller for model {model.name!r}:")
@@ -185,7 +184,7 @@ class _MPC:
         self.slack_weight = sw
         self.disturbance = disturbance
         self.noise = noise or NoiseCovariance()
-        self.solver = solver
+        self.solver = solver_name
         self.fast = bool(fast)
         self.solver_options = dict(solver_options or {})
         self.failure_hook = failure_hook

@@ -18,17 +18,17 @@ estimated with the steady-state Kalman predictor of the augmented system.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
 from ..errors import OptionError
 from ..realize import to_state_space
 from ..schema import ARX, Model, StateSpace
-from .base import _MPC, InputTarget, NoiseCovariance, _formulation
+from .base import _MPC, _formulation
+from .options import Bounds, Estimator, Solver, Weights, resolve_options
 from .qp import QPResult, TrackingQP
 
 FloatArray = NDArray[np.float64]
@@ -231,40 +231,27 @@ class LinearMPC(_MPC):
         and measured ones.
     horizon : int
         Prediction and control horizon N (samples).
-    Q, Qf : float, array (ny,) or (ny, ny), optional
-        Output tracking weights for steps 1..N-1 and for step N (default identity).
-    R : float, array (nu,) or (nu, nu), optional
-        Weight on input moves Δu (default 0.1·I).
-    u_min, u_max : float or array (nu,)
-        Hard input bounds (default 20..190 N).
-    y_min, y_max : float or array (ny,)
-        Soft output bounds (default ±1 rad); ``±inf`` removes a bound.
-    slack_weight : float or (float, float)
-        Linear and quadratic penalty on the output-bound slack.
-    disturbance : {"output", "input", "none"}
-        Integrating disturbance model for offset-free tracking.
-    noise : NoiseCovariance, optional
-        Covariances for the Kalman predictor.
+    weights : Weights, optional
+        Output tracking weights ``Q``/``Qf`` (default identity), input-move weight ``R``
+        (default 0.1·I), output-bound slack penalty, optional :class:`InputTarget`.
+    bounds : Bounds, optional
+        Hard input bounds (default 20..190 N), soft output bounds (default ±1 rad; ``±inf``
+        removes one), input-move bound.
+    estimator : Estimator, optional
+        Integrating disturbance model (``"output"``, ``"input"`` or ``"none"``) and the Kalman
+        predictor's :class:`NoiseCovariance`.
+    solver : Solver, optional
+        QP solver (``"clarabel"`` or ``"osqp"``), the direct path (``fast``), solver options,
+        ``formulation`` (``"auto"``, ``"sparse"`` keeps the predicted states as variables,
+        ``"condensed"`` eliminates them; ``auto`` picks sparse for Clarabel and condensed for
+        OSQP, the faster pairs in ``benchmarks/bench_mpc_solvers.py``) and a test
+        ``failure_hook(step) -> bool`` making that step behave as a solver failure.
     reduce : "minreal", "none" or int
         Reduction of the realisation: exact minimal realisation, none, or balanced truncation
         to the given order.
-    formulation : {"auto", "sparse", "condensed"}
-        Keep the predicted states as QP variables (sparse) or eliminate them (condensed).
-        ``auto`` picks sparse for Clarabel and condensed for OSQP, the faster pairs measured
-        in ``benchmarks/bench_mpc_solvers.py``.
-    solver : {"clarabel", "osqp"}
-        QP solver.
-    fast : bool
-        Feed the solver directly from cvxpy's parameter-affine data (True) or call
-        ``problem.solve`` every step (False).
-    solver_options : mapping, optional
-        Solver settings for both paths.
-    failure_hook : callable, optional
-        Test hook: ``failure_hook(step_index) -> bool``; True makes that step behave as a
-        solver failure (the previous input is held and counted as a fallback).
-    input_target : InputTarget, optional
-        Extra cost ``Σ |u_j - value|²_weight`` on the input directions the outputs leave free
-        (none by default).
+    **legacy
+        The keywords of tendonkit 0.1 (``Q``, ``u_min``, ``solver="osqp"``, ...): mapped onto
+        the option objects with a ``DeprecationWarning``, until the next release.
 
     Attributes
     ----------
@@ -277,7 +264,8 @@ class LinearMPC(_MPC):
     Examples
     --------
     >>> from tendonkit.testsystems import random_state_space
-    >>> mpc = LinearMPC(random_state_space(4, 2, 2), horizon=5, u_min=-1, u_max=1)
+    >>> from tendonkit.mpc import Bounds
+    >>> mpc = LinearMPC(random_state_space(4, 2, 2), horizon=5, bounds=Bounds(u_min=-1, u_max=1))
     >>> mpc.n_states, mpc.problem.is_dpp()
     (4, True)
     """
@@ -289,25 +277,19 @@ class LinearMPC(_MPC):
         model: Model,
         *,
         horizon: int = 20,
-        Q: ArrayLike | None = None,
-        R: ArrayLike | None = None,
-        Qf: ArrayLike | None = None,
-        u_min: ArrayLike = 20.0,
-        u_max: ArrayLike = 190.0,
-        y_min: ArrayLike = -1.0,
-        y_max: ArrayLike = 1.0,
-        slack_weight: float | tuple[float, float] = 1e3,
-        disturbance: str = "output",
-        noise: NoiseCovariance | None = None,
+        weights: Weights | None = None,
+        bounds: Bounds | None = None,
+        estimator: Estimator | None = None,
+        solver: Solver | None = None,
         reduce: str | int = "minreal",
-        formulation: str = "auto",
-        solver: str = "clarabel",
-        fast: bool = True,
-        solver_options: Mapping[str, Any] | None = None,
-        failure_hook: Callable[[int], bool] | None = None,
-        input_target: InputTarget | None = None,
-        du_max: ArrayLike = np.inf,
+        **legacy: Any,
     ) -> None:
+        opts = resolve_options(
+            "LinearMPC",
+            {"weights": weights, "bounds": bounds, "estimator": estimator, "solver": solver},
+            legacy,
+        )
+        formulation = opts["solver"].formulation
         problems = linear_problems(model)
         if not (
             reduce in ("minreal", "none")
@@ -318,38 +300,18 @@ class LinearMPC(_MPC):
             problems.append(
                 f"formulation must be 'auto', 'sparse' or 'condensed', found {formulation!r}."
             )
-        super().__init__(
-            model,
-            horizon=horizon,
-            Q=Q,
-            R=R,
-            Qf=Qf,
-            u_min=u_min,
-            u_max=u_max,
-            y_min=y_min,
-            y_max=y_max,
-            slack_weight=slack_weight,
-            disturbance=disturbance,
-            noise=noise,
-            solver=solver,
-            fast=fast,
-            solver_options=solver_options,
-            failure_hook=failure_hook,
-            model_problems=problems,
-            input_target=input_target,
-            du_max=du_max,
-        )
+        super().__init__(model, horizon=horizon, model_problems=problems, **opts)
         lp = prediction_model(model, reduce)
         self.prediction = lp
-        self._Bd, self._Cd = disturbance_matrices(lp, disturbance)
+        self._Bd, self._Cd = disturbance_matrices(lp, self.disturbance)
         nz = self.noise
         self._L = predictor_gain(lp, self._Bd, self._Cd, nz.process, nz.measurement, nz.disturbance)
         self._qp = TrackingQP(
             self._spec(lp.n_states, lp.A, lp.B, lp.C, lp.D),
-            solver=solver,
-            fast=fast,
-            solver_options=solver_options,
-            formulation=_formulation(formulation, solver),
+            solver=self.solver,
+            fast=self.fast,
+            solver_options=self.solver_options,
+            formulation=_formulation(formulation, self.solver),
         )
         n, nd = lp.n_states, self._Bd.shape[1]
         self._x = np.zeros(n)

@@ -12,16 +12,16 @@ first-order map ``z+ = F(z, u)`` on the augmented state
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
 from ..errors import OptionError
 from ..schema import Model, SparseMap
 from ..terms import CompiledTerms
-from .base import _MPC, InputTarget, NoiseCovariance, _LinearizationError
+from .base import _MPC, _LinearizationError
+from .options import LEGACY, Bounds, Estimator, Solver, Weights, resolve_options
 from .qp import QPResult, TrackingQP
 
 FloatArray = NDArray[np.float64]
@@ -241,10 +241,11 @@ class NonlinearMPC(_MPC):
     ----------
     model : Model
         A ``sparse_map`` model (delay input blocks allowed, lagged terms allowed).
-    horizon, Q, R, Qf, u_min, u_max, y_min, y_max, slack_weight, noise, solver, fast, solver_options, failure_hook, input_target
-        As for :class:`LinearMPC`.
-    disturbance : {"output", "none"}
-        Integrating output disturbance for offset-free tracking, or none.
+    horizon, weights, bounds, solver, **legacy
+        As for :class:`LinearMPC` (``Solver.formulation`` does not apply).
+    estimator : Estimator, optional
+        ``disturbance``: ``"output"`` (an integrating output disturbance for offset-free
+        tracking) or ``"none"``; ``noise``: the extended Kalman filter's covariances.
     linearize_along : {"plan", "rollout"}
         Linearisation points after the current estimate: the states of the previous plan,
         shifted by one sample (default; one vectorised Jacobian evaluation per step), or a
@@ -266,63 +267,40 @@ class NonlinearMPC(_MPC):
         model: Model,
         *,
         horizon: int = 20,
-        Q: ArrayLike | None = None,
-        R: ArrayLike | None = None,
-        Qf: ArrayLike | None = None,
-        u_min: ArrayLike = 20.0,
-        u_max: ArrayLike = 190.0,
-        y_min: ArrayLike = -1.0,
-        y_max: ArrayLike = 1.0,
-        slack_weight: float | tuple[float, float] = 1e3,
-        disturbance: str = "output",
-        noise: NoiseCovariance | None = None,
-        solver: str = "clarabel",
-        fast: bool = True,
-        solver_options: Mapping[str, Any] | None = None,
-        failure_hook: Callable[[int], bool] | None = None,
-        input_target: InputTarget | None = None,
-        du_max: ArrayLike = np.inf,
+        weights: Weights | None = None,
+        bounds: Bounds | None = None,
+        estimator: Estimator | None = None,
+        solver: Solver | None = None,
         linearize_along: str = "plan",
+        **legacy: Any,
     ) -> None:
+        opts = resolve_options(
+            "NonlinearMPC",
+            {"weights": weights, "bounds": bounds, "estimator": estimator, "solver": solver},
+            legacy,
+            allowed=frozenset(LEGACY) - {"formulation"},
+        )
         problems = nonlinear_problems(model)
         if linearize_along not in ("plan", "rollout"):
             problems.append(
                 f"linearize_along must be 'plan' or 'rollout', found {linearize_along!r}."
             )
-        super().__init__(
-            model,
-            horizon=horizon,
-            Q=Q,
-            R=R,
-            Qf=Qf,
-            u_min=u_min,
-            u_max=u_max,
-            y_min=y_min,
-            y_max=y_max,
-            slack_weight=slack_weight,
-            disturbance=disturbance,
-            noise=noise,
-            solver=solver,
-            fast=fast,
-            solver_options=solver_options,
-            failure_hook=failure_hook,
-            model_problems=problems,
-            input_target=input_target,
-            du_max=du_max,
-        )
+        if opts["solver"].formulation != "auto":
+            problems.append("Solver.formulation applies to LinearMPC only.")
+        super().__init__(model, horizon=horizon, model_problems=problems, **opts)
         dyn = SparseMapDynamics(model)
         self.dynamics = dyn
         self.linearize_along = linearize_along
         nz = self.noise
         self._ekf = ExtendedKalmanFilter(
-            dyn, disturbance == "output", nz.process, nz.measurement, nz.disturbance
+            dyn, self.disturbance == "output", nz.process, nz.measurement, nz.disturbance
         )
         ny = len(model.outputs)
         self._qp = TrackingQP(
             self._spec(dyn.nz, None, None, dyn.C, np.zeros((ny, dyn.nu))),
-            solver=solver,
-            fast=fast,
-            solver_options=solver_options,
+            solver=self.solver,
+            fast=self.fast,
+            solver_options=self.solver_options,
         )
         self._plan: FloatArray | None = None
         self._plan_states: FloatArray | None = None

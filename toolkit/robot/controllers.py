@@ -13,7 +13,16 @@ from typing import Any
 import numpy as np
 
 from ..errors import OptionError, raise_if
-from ..mpc import InputTarget, LinearMPC, NoiseCovariance, NonlinearMPC
+from ..mpc import (
+    Bounds,
+    Estimator,
+    InputTarget,
+    LinearMPC,
+    NoiseCovariance,
+    NonlinearMPC,
+    Solver,
+    Weights,
+)
 from ..mpc.linear import linear_problems
 from ..mpc.nonlinear import nonlinear_problems
 
@@ -159,19 +168,17 @@ def make_controller(
     target = None
     if opt["pair_weight"] > 0:
         target = InputTarget(opt["pair_weight"] * PAIR_SUMS.T @ PAIR_SUMS, PRETENSION)
-    common = {
-        "horizon": opt["horizon"],
-        "Q": q_weight,
-        "R": opt["R"],
-        "y_min": -opt["y_bound"],
-        "y_max": opt["y_bound"],
-        "noise": NoiseCovariance(opt["process"], opt["measurement"], opt["disturbance"]),
-        "solver": s.solver,
-        "fast": s.fast,
-        "failure_hook": failure_hook,
-        "input_target": target,
-        "du_max": opt["du_max"],
-    }
-    if kind == "linear":
-        return LinearMPC(model, **common)
-    return NonlinearMPC(model, **common)
+    weights = Weights(Q=q_weight, R=opt["R"], input_target=target)
+    bounds = Bounds(y_min=-opt["y_bound"], y_max=opt["y_bound"], du_max=opt["du_max"])
+    noise = NoiseCovariance(opt["process"], opt["measurement"], opt["disturbance"])
+    estimator = Estimator(noise=noise)
+    solver = Solver(name=s.solver, fast=s.fast, failure_hook=failure_hook)
+    cls = LinearMPC if kind == "linear" else NonlinearMPC
+    return cls(
+        model,
+        horizon=opt["horizon"],
+        weights=weights,
+        bounds=bounds,
+        estimator=estimator,
+        solver=solver,
+    )

@@ -29,6 +29,7 @@ import numpy as np
 from ..compare import compare, score
 from ..diagnose import diagnose
 from ..diagnose.report import write_report
+from ..files import write_json
 from ..manager import identifiers
 from ..report import Report
 from ..stepper import Stepper
@@ -306,7 +307,7 @@ def run_demo(
     }
     stages.run("write the report", lambda: _write_report(out, summary, figs2, diag, data))
     summary["total_seconds"] = time.perf_counter() - t0
-    (out / "summary.json").write_text(json.dumps(summary, indent=2, default=str), encoding="utf-8")
+    write_json(out / "summary.json", json.loads(json.dumps(summary, default=str)))  # strict JSON
     print(f"Report: {out / 'index.html'}  (total {summary['total_seconds']:.0f} s)")
     return summary
 

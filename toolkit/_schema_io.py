@@ -6,6 +6,9 @@ needs only the model's parts (:mod:`tendonkit._representations`), never the sche
 
 from __future__ import annotations
 
+import json
+import math
+import re
 from typing import Any
 
 import numpy as np
@@ -21,6 +24,34 @@ from ._representations import (
 )
 from .errors import SchemaError
 from .terms import Term, term_from_dict
+
+#: Largest delay, lag or ARX input delay (samples) a model file may state: 100,000 samples is
+#: 50 minutes at the robot's 30 ms; a larger one would make every simulation allocate and loop
+#: over a history no data set has.
+MAX_LAG = 100_000
+#: Most lag matrices (ARX ``na``/``nb``) a model file may state.
+MAX_ORDER = 1_000
+#: Most numbers in one matrix of a model file (memory, not precision, is the limit).
+MAX_ELEMENTS = 10_000_000
+#: Signal names: a letter or underscore, then letters, digits, ``_`` or ``.`` — names survive a
+#: CSV header and an FMU variable list unquoted (no separators, quotes or control characters).
+NAME_PATTERN = re.compile(r"[^\W\d]\w*(?:\.\w+)*")
+
+
+def is_number(value: Any) -> bool:
+    """A JSON number that is a finite double (not a bool, not a too-large integer)."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return False
+    try:
+        return math.isfinite(float(value))
+    except OverflowError:
+        return False
+
+
+def _found(value: Any) -> str:
+    text = json.dumps(value) if isinstance(value, str | bool) or value is None else repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
 
 _TOP_KEYS = {
     "schema_version",
@@ -47,7 +78,7 @@ def model_fields(data: Any, source: str = "model") -> dict[str, Any]:
     if not isinstance(data, dict):
         raise SchemaError(f"{source}: expected a JSON object, found {type(data).__name__}.")
     version = data.get("schema_version")
-    if version != SCHEMA_VERSION:
+    if type(version) is not int or version != SCHEMA_VERSION:
         raise SchemaError(
             f"{source}: schema_version {version!r} is not supported; this tendonkit reads "
             f"version {SCHEMA_VERSION}."
@@ -62,8 +93,8 @@ def model_fields(data: Any, source: str = "model") -> dict[str, Any]:
     if not isinstance(name, str):
         p.append(f"name: expected text, found {name!r}.")
     dt = data.get("dt")
-    if isinstance(dt, bool) or not isinstance(dt, int | float) or not dt > 0:
-        p.append(f"dt: expected a positive number of seconds, found {dt!r}.")
+    if not is_number(dt) or not float(dt) > 0:  # type: ignore[arg-type]
+        p.append(f"dt: expected a positive number of seconds, found {_found(dt)}.")
     inputs = _signals(data.get("inputs", []), "inputs", p)
     outputs = _signals(data.get("outputs", []), "outputs", p)
     states = _signals(data.get("states", []), "states", p)
@@ -99,28 +130,55 @@ def _signals(raw: Any, where: str, p: list[str]) -> tuple[Signal, ...]:
             or not isinstance(s.get("unit", ""), str)
             or set(s) - {"name", "unit"}
         ):
-            p.append(f"{where}[{i}]: expected {{'name': text, 'unit': text}}, found {s!r}.")
+            p.append(f"{where}[{i}]: expected {{'name': text, 'unit': text}}, found {_found(s)}.")
+            continue
+        if not NAME_PATTERN.fullmatch(s["name"]):
+            p.append(
+                f"{where}[{i}].name: {_found(s['name'])} is not a signal name (a letter or _, "
+                "then letters, digits, _ or .; no separators, spaces or control characters)."
+            )
+            continue
+        if not s.get("unit", "").isprintable():
+            p.append(f"{where}[{i}].unit: control characters in {_found(s['unit'])}.")
             continue
         out.append(Signal(s["name"], s.get("unit", "")))
     return tuple(out)
 
 
+def _leaves(raw: Any, where: str, depth: int, p: list[str]) -> tuple[int, ...] | None:
+    """Shape of a nested list of numbers, or None after reporting the first problem."""
+    if depth == 0:
+        if not is_number(raw):
+            p.append(f"{where}: expected a number, found {_found(raw)}.")
+            return None
+        return ()
+    if not isinstance(raw, list):
+        p.append(f"{where}: expected a list, found {_found(raw)}.")
+        return None
+    shapes = []
+    for i, item in enumerate(raw):
+        s = _leaves(item, f"{where}[{i}]", depth - 1, p)
+        if s is None:
+            return None
+        shapes.append(s)
+    if any(s != shapes[0] for s in shapes):
+        p.append(f"{where}: rows of different lengths.")
+        return None
+    return (len(raw), *(shapes[0] if shapes else (0,) * (depth - 1)))
+
+
 def _matrix(raw: Any, where: str, p: list[str], ndim: int = 2) -> np.ndarray | None:
     if raw is None:
         return None
-    try:
-        arr = np.array(raw, dtype=float)
-    except (TypeError, ValueError):
-        p.append(f"{where}: expected a {ndim}-d array of numbers.")
+    shape = _leaves(raw, where, ndim, p)
+    if shape is None:
         return None
-    if arr.ndim != ndim and not (arr.size == 0 and ndim == 2):
-        p.append(f"{where}: expected a {ndim}-d array, found {arr.ndim}-d.")
+    if math.prod(shape) > MAX_ELEMENTS:
+        p.append(f"{where}: {math.prod(shape)} numbers; at most {MAX_ELEMENTS} are accepted.")
         return None
+    arr = np.array(raw, dtype=float).reshape(shape)
     if arr.size == 0 and ndim == 2:
         arr = arr.reshape(0, 0) if arr.ndim != 2 else arr
-    if not np.all(np.isfinite(arr)):
-        p.append(f"{where}: contains NaN or infinite values.")
-        return None
     return arr
 
 
@@ -145,7 +203,7 @@ def _representation(raw: Any, p: list[str]) -> StateSpace | ARX | SparseMap | No
         p.append(f"{where}: expected an object.")
         return None
     kind = raw.get("kind")
-    if kind not in _REP_KEYS:
+    if not isinstance(kind, str) or kind not in _REP_KEYS:
         p.append(f"{where}.kind: {kind!r} is not one of {sorted(_REP_KEYS)}.")
         return None
     unknown = set(raw) - _REP_KEYS[kind]
@@ -168,9 +226,12 @@ def _representation(raw: Any, p: list[str]) -> StateSpace | ARX | SparseMap | No
         B = _matrix_list(raw.get("B"), f"{where}.B", p)
         nk = raw.get("nk")
         if not isinstance(nk, list) or not all(
-            isinstance(k, int) and not isinstance(k, bool) for k in nk
+            isinstance(k, int) and not isinstance(k, bool) and 0 <= k <= MAX_LAG for k in nk
         ):
-            p.append(f"{where}.nk: expected a list of integers, found {nk!r}.")
+            p.append(
+                f"{where}.nk: expected a list of integers from 0 to {MAX_LAG} (samples), "
+                f"found {_found(nk)}."
+            )
             nk = []
         offset = _matrix(raw.get("offset"), f"{where}.offset", p, 1)
         terms = _terms(raw.get("terms", []), f"{where}.terms", p)
@@ -184,9 +245,9 @@ def _representation(raw: Any, p: list[str]) -> StateSpace | ARX | SparseMap | No
     coef = _required(raw, "coefficients", where, p)
     outs = raw.get("output_states")
     if not isinstance(outs, list) or not all(
-        isinstance(i, int) and not isinstance(i, bool) for i in outs
+        isinstance(i, int) and not isinstance(i, bool) and 0 <= i < MAX_ELEMENTS for i in outs
     ):
-        p.append(f"{where}.output_states: expected a list of state indices, found {outs!r}.")
+        p.append(f"{where}.output_states: expected a list of state indices, found {_found(outs)}.")
         outs = []
     x0 = _matrix(raw.get("x0"), f"{where}.x0", p, 1)
     if len(p) > n0:
@@ -197,6 +258,9 @@ def _representation(raw: Any, p: list[str]) -> StateSpace | ARX | SparseMap | No
 def _matrix_list(raw: Any, where: str, p: list[str]) -> list[np.ndarray]:
     if not isinstance(raw, list):
         p.append(f"{where}: expected a list of matrices.")
+        return []
+    if len(raw) > MAX_ORDER:
+        p.append(f"{where}: {len(raw)} lag matrices; at most {MAX_ORDER} are accepted.")
         return []
     out = []
     for i, m in enumerate(raw):
@@ -218,12 +282,17 @@ def _blocks(raw: Any, where: str, p: list[str]) -> tuple[Block, ...]:
             or not isinstance(b["kind"], str)
             or not isinstance(b["signal"], str)
             or not isinstance(b["params"], dict)
-            or not all(
-                isinstance(v, int | float) and not isinstance(v, bool) for v in b["params"].values()
-            )
+            or not all(is_number(v) for v in b["params"].values())
         ):
             p.append(
-                f"{where}[{i}]: expected {{kind, signal, params: {{name: number}}}}, found {b!r}."
+                f"{where}[{i}]: expected {{kind, signal, params: {{name: number}}}}, "
+                f"found {_found(b)}."
+            )
+            continue
+        samples = b["params"].get("samples", 0)
+        if b["kind"] == "delay" and not 0 <= samples <= MAX_LAG:
+            p.append(
+                f"{where}[{i}].params.samples: a delay from 0 to {MAX_LAG} samples, found {samples}."
             )
             continue
         out.append(Block(b["kind"], b["signal"], {k: float(v) for k, v in b["params"].items()}))
@@ -235,10 +304,8 @@ def _provenance(raw: Any, p: list[str]) -> Provenance:
         p.append("provenance: expected an object.")
         return Provenance()
     fit = raw.get("training_fit", {})
-    if not isinstance(fit, dict) or not all(
-        isinstance(v, int | float) and not isinstance(v, bool) for v in fit.values()
-    ):
-        p.append("provenance.training_fit: expected {output: number}.")
+    if not isinstance(fit, dict) or not all(is_number(v) for v in fit.values()):
+        p.append("provenance.training_fit: expected {output: finite number}.")
         fit = {}
     opts = raw.get("options", {})
     if not isinstance(opts, dict):
@@ -252,7 +319,7 @@ def _provenance(raw: Any, p: list[str]) -> Provenance:
     for key in ("identifier", "version", "dataset_hash", "notes"):
         val = raw.get(key, "")
         if not isinstance(val, str):
-            p.append(f"provenance.{key}: expected text, found {val!r}.")
+            p.append(f"provenance.{key}: expected text, found {_found(val)}.")
             val = ""
         texts[key] = val
     return Provenance(

@@ -19,7 +19,7 @@ from .figures import plot_outputs
 from .metrics import FitRow, fit, fit_table
 from .predict import predict
 from .schema import Model
-from .simulate import aligned, simulate
+from .simulate import aligned, divergence, simulate
 
 #: Per-model additions to a row of :func:`compare`: ``(model, data, sims, name) -> dict``.
 RowExtras = Callable[[Model, Dataset, list[np.ndarray], str], dict[str, Any]]
@@ -80,6 +80,12 @@ def compare(
             "fit": fits,
             "mean_fit": float(np.mean(list(fits.values()))),
         }
+        at = divergence(np.vstack(sims), aligned(model, data).y)
+        if at is not None:
+            # A diverged run has no fit: say where it left the data's range instead.
+            row.update(fit=dict.fromkeys(fits), mean_fit=None, diverged_at_sample=at)
+            rows.append(row)
+            continue
         if extras is not None:
             row.update(extras(model, data, sims, str(name)))
         rows.append(row)
@@ -105,8 +111,18 @@ def compare(
 
 def render_compare(result: dict[str, Any]) -> str:
     """Plain-text rendering of :func:`compare`'s result."""
-    rows = [FitRow(r["model"], r["method"], r["fit"]) for r in result["models"]]
+    rows = [
+        FitRow(r["model"], r["method"], r["fit"])
+        for r in result["models"]
+        if r.get("diverged_at_sample") is None
+    ]
     text = [f"Fit [%] ({result['mode']}), 100 (1 - |y - ŷ| / |y - mean y|):", fit_table(rows)]
+    text += [
+        f"{r['model']}: diverged at sample {r['diverged_at_sample']} (its outputs left 10^6 "
+        "times the data's range) — no fit"
+        for r in result["models"]
+        if r.get("diverged_at_sample") is not None
+    ]
     extra = [r for r in result["models"] if "joint_fit" in r or "ee_error_cm" in r]
     for r in extra:
         parts = []

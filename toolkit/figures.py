@@ -6,6 +6,7 @@ non-interactive Agg backend.  matplotlib is imported inside the functions.
 
 from __future__ import annotations
 
+import math
 import re
 from collections.abc import Sequence
 from pathlib import Path
@@ -132,7 +133,7 @@ def plot_residual_vs(
     ax.set_ylabel(residual_label)
     ax.legend(loc="upper right", fontsize=8)
     ax.grid(alpha=0.3)
-    ax.set_title(f"Residual against its explaining signal — {name}")
+    ax.set_title(f"Free-run residual — {name}")
     return _save(fig, out_dir / f"residual_vs_{_slug(name)}.png")
 
 
@@ -141,9 +142,14 @@ def plot_ranking(out_dir: Path, findings: Sequence[dict[str, Any]]) -> Path:
     plt = _plt()
     fig, ax = plt.subplots(figsize=(7, 0.45 * max(len(findings), 3) + 1.2))
     names = [f["cause"] for f in findings][::-1]
-    gains = [max(f["gain"], -50.0) for f in findings][::-1]
+    diverged = [not math.isfinite(f["gain"]) or f.get("diverged", False) for f in findings][::-1]
+    gains = [0.0 if d else max(f["gain"], -50.0) for f, d in zip(findings[::-1], diverged)]
     colors = ["tab:green" if f["significant"] else "tab:gray" for f in findings][::-1]
     ax.barh(names, gains, color=colors)
+    for i, d in enumerate(diverged):
+        if d:
+            ax.annotate("diverged", (0, i), xytext=(4, 0), textcoords="offset points",
+                        va="center", fontsize=8, color="tab:red")  # fmt: skip
     ax.axvline(0, color="black", lw=0.6)
     ax.set_xlabel("validation fit gain [percentage points]")
     ax.set_ylabel("candidate cause")

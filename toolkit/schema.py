@@ -40,6 +40,7 @@ from ._representations import (
 )
 from ._schema_io import model_fields
 from .errors import SchemaError
+from .files import atomic_write, check_input_file
 from .realize import to_state_space
 from .terms import Term
 
@@ -167,10 +168,9 @@ class Model:
         return json.dumps(self.to_dict(), indent=indent, allow_nan=False)
 
     def save(self, path: str | Path) -> Path:
-        """Write the model as JSON to ``path`` and return the path."""
-        path = Path(path)
-        path.write_text(self.to_json(), encoding="utf-8")
-        return path
+        """Write the model as JSON to ``path``, atomically (:func:`tendonkit.files.atomic_write`)."""
+        text = self.to_json()
+        return atomic_write(path, lambda p: p.write_text(text, encoding="utf-8"))
 
     @classmethod
     def from_dict(cls, data: Any, source: str = "model") -> Model:
@@ -183,10 +183,21 @@ class Model:
 
     @classmethod
     def from_json(cls, text: str, source: str = "model") -> Model:
-        """Parse JSON text (never evaluates code)."""
+        """Parse JSON text (never evaluates code), within :data:`MAX_JSON_BYTES` and
+        :data:`MAX_JSON_DEPTH`."""
+        if len(text) > MAX_JSON_BYTES:
+            raise SchemaError(
+                f"{source} has {len(text)} characters; a model file holds at most "
+                f"{MAX_JSON_BYTES} (it is read into memory whole)."
+            )
+        depth = json_depth(text)
+        if depth > MAX_JSON_DEPTH:
+            raise SchemaError(
+                f"{source} nests {depth} levels deep; a model is at most {MAX_JSON_DEPTH} deep."
+            )
         try:
             data = json.loads(text, parse_constant=_refuse_constant)
-        except (json.JSONDecodeError, ValueError) as exc:
+        except (json.JSONDecodeError, ValueError, RecursionError) as exc:
             raise SchemaError(f"{source} is not valid JSON: {exc}") from None
         return cls.from_dict(data, source)
 
@@ -194,7 +205,12 @@ class Model:
     def load(cls, path: str | Path) -> Model:
         """Read a model JSON file."""
         path = Path(path)
+        problems: list[str] = []
+        if not check_input_file(path, problems, what="model file") and path.exists():
+            raise SchemaError(problems[0])
         try:
+            if path.stat().st_size > 4 * MAX_JSON_BYTES:
+                raise SchemaError(f"Model file {str(path)!r} is larger than any model file can be.")
             text = path.read_text(encoding="utf-8")
         except FileNotFoundError:
             raise SchemaError(f"Model file {str(path)!r} does not exist.") from None
@@ -208,6 +224,34 @@ class Model:
         return self.to_dict() == other.to_dict()
 
     __hash__ = None  # type: ignore[assignment]
+
+
+#: Largest model file read (characters): a model of 10 million numbers fits with room to spare.
+MAX_JSON_BYTES = 256 * 1024 * 1024
+#: Deepest JSON nesting of a model file: the schema needs 6 (matrices in a list in an object).
+MAX_JSON_DEPTH = 32
+
+
+def json_depth(text: str) -> int:
+    """Deepest ``[``/``{`` nesting of JSON text (strings skipped), without parsing it."""
+    depth = deepest = 0
+    in_string = escaped = False
+    for ch in text:
+        if in_string:
+            if escaped:
+                escaped = False
+            elif ch == "\\":
+                escaped = True
+            elif ch == '"':
+                in_string = False
+        elif ch == '"':
+            in_string = True
+        elif ch in "[{":
+            depth += 1
+            deepest = max(deepest, depth)
+        elif ch in "]}":
+            depth -= 1
+    return deepest
 
 
 def _refuse_constant(name: str) -> float:

@@ -192,13 +192,51 @@ def simulate_dataset(
     return [simulate(model, e.u, y=e.y, initial=initial) for e in data.experiments]
 
 
+#: Relative difference of sample times beyond which a model and data do not belong together.
+DT_TOLERANCE = 0.01
+
+
+def check_sample_time(model: Model, dt: float, what: str = "the data") -> None:
+    """Raise :class:`DataError` unless ``dt`` is the model's sample time (within 1 %)."""
+    if abs(float(dt) - model.dt) > DT_TOLERANCE * model.dt:
+        raise DataError(
+            f"Model {model.name!r} has sample time {model.dt:g} s but {what} are sampled at "
+            f"{float(dt):g} s: a discrete-time model only holds at its own sample time "
+            "(resample the data, or identify a model at this rate)."
+        )
+
+
+def divergence(y: FloatArray, reference: FloatArray, factor: float = 1e6) -> int | None:
+    """First sample where a free run left ``factor`` × the reference's range, or None.
+
+    A simulated output that turns non-finite or exceeds ``factor`` times the span of the
+    measured (or expected) outputs around their mean has diverged: the model is unstable on
+    these inputs, and numbers past that sample are meaningless.
+    """
+    ref = np.asarray(reference, dtype=float)
+    y = np.asarray(y, dtype=float)
+    finite = ref[np.isfinite(ref).all(axis=1)] if ref.ndim == 2 else ref[np.isfinite(ref)]
+    if finite.size == 0:
+        span, centre = np.ones(y.shape[1:]), np.zeros(y.shape[1:])
+    else:
+        span = np.maximum(np.ptp(finite, axis=0), np.abs(finite).max(axis=0))
+        span = np.where(span > 0, span, 1.0)
+        centre = finite.mean(axis=0)
+    with np.errstate(invalid="ignore", over="ignore"):
+        bad = ~np.isfinite(y) | (np.abs(y - centre) > factor * span)
+    rows = bad.any(axis=1) if bad.ndim == 2 else bad
+    return int(np.argmax(rows)) if rows.any() else None
+
+
 def aligned(model: Model, data: Dataset) -> Dataset:
     """The dataset with the model's inputs and outputs in the model's order.
 
     Raises
     ------
     DataError
-        A signal of the model is not in the data.
+        A signal of the model is not in the data, or the data are sampled at another rate than
+        the model (more than :data:`DT_TOLERANCE` apart): a discrete-time model meeting data of
+        another sample time gives a wrong answer, never an error of its own.
     """
     missing = [n for n in (*model.input_names, *model.output_names) if n not in data.columns]
     if missing:
@@ -206,6 +244,7 @@ def aligned(model: Model, data: Dataset) -> Dataset:
             f"The data lack signals of model {model.name!r}: {', '.join(missing)}. "
             f"Columns: {', '.join(data.columns)}."
         )
+    check_sample_time(model, data.dt)
     if (tuple(model.input_names), tuple(model.output_names)) == (data.inputs, data.outputs):
         return data
     return data.select(model.input_names, model.output_names)
@@ -353,10 +392,13 @@ def _sim_sparse(
 
 
 __all__ = [
+    "DT_TOLERANCE",
     "aligned",
     "apply_block",
     "arx_max_lag",
+    "check_sample_time",
     "delay_taps",
+    "divergence",
     "estimate_x0",
     "fractional_delay",
     "play_operator",

@@ -231,6 +231,16 @@ def term_matrix(terms: Sequence[Term], get: Getter, n: int) -> FloatArray:
 
 
 _FACTOR_KEYS = {"signal", "fn", "power", "lag", "diff", "scale", "offset", "param"}
+#: Bounds on a factor read from a file: lags as a delay's (100,000 samples), powers to 64.
+MAX_TERM_LAG = 100_000
+MAX_POWER = 64
+
+
+def _finite(value: int | float) -> bool:
+    try:
+        return bool(np.isfinite(float(value)))
+    except OverflowError:
+        return False
 
 
 def factor_from_dict(data: Any, where: str, problems: list[str]) -> Factor | None:
@@ -247,21 +257,27 @@ def factor_from_dict(data: Any, where: str, problems: list[str]) -> Factor | Non
         problems.append(f"{where}.signal: expected a signal name, found {signal!r}.")
         ok = False
     fn = data.get("fn", "pow")
-    if fn not in FUNCTIONS:
+    if not isinstance(fn, str) or fn not in FUNCTIONS:
         problems.append(f"{where}.fn: {fn!r} is not one of {sorted(FUNCTIONS)}.")
         ok = False
     ints = {}
-    for key, default, low in (("power", 1, 1), ("lag", 0, 0), ("diff", 0, 0)):
+    for key, default, low, high in (
+        ("power", 1, 1, MAX_POWER),
+        ("lag", 0, 0, MAX_TERM_LAG),
+        ("diff", 0, 0, MAX_TERM_LAG),
+    ):
         val = data.get(key, default)
-        if isinstance(val, bool) or not isinstance(val, int) or val < low:
-            problems.append(f"{where}.{key}: expected an integer >= {low}, found {val!r}.")
+        if isinstance(val, bool) or not isinstance(val, int) or not low <= val <= high:
+            problems.append(
+                f"{where}.{key}: expected an integer from {low} to {high}, found {val!r}."
+            )
             ok = False
         else:
             ints[key] = val
     floats: dict[str, float] = {}
     for key, fdefault in (("scale", 1.0), ("offset", 0.0), ("param", 0.0)):
         val = data.get(key, fdefault)
-        if isinstance(val, bool) or not isinstance(val, int | float) or not np.isfinite(val):
+        if isinstance(val, bool) or not isinstance(val, int | float) or not _finite(val):
             problems.append(f"{where}.{key}: expected a finite number, found {val!r}.")
             ok = False
         else:

@@ -136,3 +136,53 @@ def test_min_gain_and_a_bilinear_baseline_from_the_command_line(tmp_path):
     assert d["settings"]["min_gain"] == 90.0
     bad = run(*args, "--min-gain", "-1")
     assert bad.returncode == 2 and "min_gain" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def test_a_diverged_candidate_says_so_in_text_and_strict_json(tmp_path):
+    import math
+
+    from tendonkit.cli.diagnose import render_diagnosis
+    from tendonkit.diagnose import Finding
+    from tendonkit.files import write_json
+
+    f = Finding(
+        cause="backlash", effect="backlash", gain=-math.inf, fit={"y": -1e300},
+        relative_gain=-4.4e12, p_value=1.0, significant=False, params={}, evidence={},
+        description="",
+    )  # fmt: skip
+    d = f.to_dict()
+    assert d["diverged"] is True
+    summary = {
+        "cause": "none",
+        "baseline": {"method": "arx", "fit": 80.0},
+        "extended": {},
+        "findings": [d],
+    }
+    assert "diverged" in render_diagnosis(summary) and "-inf" not in render_diagnosis(summary)
+    text = write_json(tmp_path / "d.json", summary).read_text()
+    assert "Infinity" not in text
+    assert json.loads(text)["findings"][0] == {**d, "gain": None, "fit": {"y": -1e300}}
+
+
+def test_a_baseline_that_does_not_fit_the_validation_data_names_no_cause(tmp_path):
+    # Trained on one regime, validated on another: the baseline's validation fit is negative,
+    # and its errors must not be read as a cause (the tutorial's -93 % case).
+    rng = np.random.default_rng(0)
+    n = 3000
+    u = rng.normal(size=n)
+    y = np.zeros(n)
+    for k in range(2, n):
+        y[k] = 1.6 * y[k - 1] - 0.7 * y[k - 2] + 0.1 * u[k - 1]
+    tr = write_csv(tmp_path / "train.csv", {"t": 0.01 * np.arange(n), "force": u, "pos": y})
+    v = np.zeros(n)
+    w = np.sign(np.sin(0.01 * np.arange(n))) * 3 + 0.1 * rng.normal(size=n)
+    for k in range(2, n):
+        v[k] = 0.5 * v[k - 1] + 0.05 * w[k - 1] + 2.0
+    va = write_csv(tmp_path / "valid.csv", {"t": 0.01 * np.arange(n), "force": w, "pos": v})
+    r = run("diagnose", str(tr), str(va), "--inputs", "force", "--outputs", "pos",
+            "--json", str(tmp_path / "d.json"))  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    d = json.loads((tmp_path / "d.json").read_text())
+    assert d["baseline"]["fit"] < 0
+    assert d["cause"] == "none" and d["baseline"]["unfit"]
+    assert "unfit for diagnosis" in r.stdout

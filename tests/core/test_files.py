@@ -275,3 +275,39 @@ def test_csv_names_that_a_header_cannot_hold(tmp_path):
         with pytest.raises(DataError, match="cannot be written to a CSV header"):
             write_csv(tmp_path / "o.csv", {name: np.zeros(3)})
     assert not (tmp_path / "o.csv").exists()
+
+
+def test_mpc_horizon_and_sample_time_are_checked_up_front(capsys, tmp_path):
+    from tendonkit.mpc.examples import two_mode_model
+
+    model = tmp_path / "m.json"
+    two_mode_model().save(model)
+    code, _, err = run(capsys, "mpc", model, "--reference", "petal", "--horizon", "100000")
+    assert code == 2 and "--horizon must be from 1 to 300 samples" in err
+    fast = tmp_path / "fast.json"
+    two_mode_model().replace(dt=0.01).save(fast)
+    code, _, err = run(capsys, "mpc", fast, "--reference", "petal")
+    assert code == 2 and "sample time 0.01 s" in err
+
+
+def test_report_naming_an_existing_file_is_refused(capsys, tmp_path, csv_file):
+    data = csv_file()
+    report = tmp_path / "report"
+    report.write_text("a file")
+    code, _, err = run(
+        capsys, "diagnose", data, data, "--inputs", "u1,u2", "--outputs", "y1,y2",
+        "--report", report,
+    )  # fmt: skip
+    assert code == 2 and "--report" in err and "exists and is not a folder" in err
+    assert report.read_text() == "a file"
+
+
+def test_na_0_is_a_fir_model_as_documented(capsys, tmp_path, csv_file):
+    out = tmp_path / "fir.json"
+    code, _, err = run(
+        capsys, "identify", csv_file(), "--inputs", "u1,u2", "--outputs", "y1,y2",
+        "--option", "na=0", "--option", "nb=20", "-o", out,
+    )  # fmt: skip
+    assert code == 0, err
+    rep = json.loads(out.read_text())["representation"]
+    assert rep["kind"] == "arx" and rep["A"] == [] and len(rep["B"]) == 20

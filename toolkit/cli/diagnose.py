@@ -148,6 +148,8 @@ def render_diagnosis(summary: dict[str, Any]) -> str:
             f"{check['error_ratio']:.1f}x that of a linear n4sid model (output noise biases an "
             f"equation-error fit); {what}."
         )
+    if summary["baseline"].get("unfit"):
+        lines.append(f"note: unfit for diagnosis: {summary['baseline']['unfit']}")
     ext = summary["extended"]
     if summary["cause"] != "none":
         lines.append(
@@ -164,7 +166,8 @@ def render_diagnosis(summary: dict[str, Any]) -> str:
     for f in summary["findings"]:
         mark = "*" if f["significant"] else " "
         p = f.get("p_adjusted", f["p_value"])
-        lines.append(f" {mark} {f['cause']:<20} {f['gain']:+8.2f}  p_adj={p:.3g}")
+        gain = "diverged" if f.get("diverged") else f"{f['gain']:+8.2f}"
+        lines.append(f" {mark} {f['cause']:<20} {gain:>8}  p_adj={p:.3g}")
     if summary.get("report"):
         lines.append(f"report: {summary['report']}")
     return "\n".join(lines)

@@ -8,11 +8,11 @@ from typing import Any
 
 from ..compare import compare, render_compare
 from ..dataset import Dataset, write_csv
-from ..errors import DataError
+from ..errors import DataError, SimulationError
 from ..predict import predict
 from ..preprocess import lowpass, paper_cutoff_hz
 from ..robot.reconstruct import has_base_joints, joint_extras
-from ..simulate import simulate
+from ..simulate import check_sample_time, divergence, simulate
 from .common import (
     atomic_write,
     check_output_dir,
@@ -159,6 +159,11 @@ def cmd_simulate(args: argparse.Namespace) -> int:
             )
         except DataError as exc:
             problems.extend(exc.problems or [str(exc)])
+    if data is not None and model is not None:
+        try:
+            check_sample_time(model, data.dt, what=f"{args.data!r}")
+        except DataError as exc:
+            problems.append(str(exc))
     if data is not None and args.k is not None and args.k > data.n_samples:
         problems.append(
             f"--k must be at most the number of samples ({data.n_samples}), found {args.k}."
@@ -172,6 +177,15 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         y = predict(model, exp.u, y_meas, k=args.k)
     else:
         y = simulate(model, exp.u, y=y_meas, initial=initial)  # type: ignore[arg-type]
+    reference = y_meas if y_meas is not None else y[: max(10, len(y) // 10)]
+    k = divergence(y, reference)
+    if k is not None:
+        raise SimulationError(
+            f"The simulation of model {model.name!r} diverged at sample {k} (t = {exp.t[k]:g} s): "
+            "its outputs left 10^6 times the range of "
+            + ("the measured outputs" if y_meas is not None else "their first tenth")
+            + "; the model is unstable on these inputs. Nothing was written."
+        )
     cols = {args.time: exp.t, **{n: y[:, j] for j, n in enumerate(model.output_names)}}
     atomic_write(args.output, lambda p: write_csv(p, cols))
     what = f"{args.k}-step prediction" if args.k else f"free-run simulation (initial: {initial})"

@@ -29,6 +29,7 @@ from ..robot.collect import fmu_parameters
 from ..robot.cosim import (
     DEFAULTS,
     REFERENCES,
+    STEP,
     ControllerSettings,
     controller_kind,
     make_controller,
@@ -37,7 +38,15 @@ from ..robot.cosim import (
     plot_tracking,
     run,
 )
-from .common import check_output_path, load_model, raise_problems, write_json
+from ..simulate import DT_TOLERANCE
+from .common import (
+    check_output_path,
+    load_model,
+    positive_float,
+    raise_problems,
+    seed_argument,
+    write_json,
+)
 
 __all__ = ["add_commands", "cmd_mpc"]
 
@@ -63,9 +72,11 @@ def add_commands(sub: Any) -> None:
         "'D=0.12', 'G=horiz_tilt') or a plant parameter (e.g. 'friction_on=1', 'delay_s=0.09')",
     )
     p.add_argument("--preset", help="base configuration of the default plant: nominal, paper_like")
-    p.add_argument("--seed", type=int, help="seed of the plant's sensor noise")
+    p.add_argument("--seed", type=seed_argument, help="seed of the plant's sensor noise")
     p.add_argument("--reference", required=True, choices=REFERENCES, help="what to track")
-    p.add_argument("--duration", type=float, help="seconds (default: one petal lap, 2 circle laps)")
+    p.add_argument(
+        "--duration", type=positive_float, help="seconds (default: one petal lap, 2 circle laps)"
+    )
     p.add_argument(
         "--speed", type=float, default=2.5, help="end-effector speed, cm/s (default 2.5)"
     )
@@ -136,6 +147,11 @@ def _plant(args: argparse.Namespace, problems: list[str]) -> tuple[Any, dict[str
     return None, {}, params
 
 
+#: Longest prediction horizon (samples): 300 samples is 9 s of preview at 30 ms, ten times the
+#: robot's slowest mode, and keeps the QP (about 2,000 variables) solvable within a step.
+MAX_HORIZON = 300
+
+
 def cmd_mpc(args: argparse.Namespace) -> int:
     """Co-simulate the plant with the MPC for a model and report the tracking."""
 
@@ -152,8 +168,17 @@ def cmd_mpc(args: argparse.Namespace) -> int:
         check_output_path(args.json, inputs, problems)
     if args.plot and not Path(args.plot).resolve().parent.exists():
         problems.append(f"the parent folder of --plot {args.plot!r} does not exist.")
-    if args.horizon is not None and args.horizon < 1:
-        problems.append(f"--horizon must be >= 1, found {args.horizon}.")
+    if args.horizon is not None and not 1 <= args.horizon <= MAX_HORIZON:
+        problems.append(
+            f"--horizon must be from 1 to {MAX_HORIZON} samples ({MAX_HORIZON * STEP:g} s), "
+            f"found {args.horizon}: the QP grows with the horizon and must be solved within "
+            "one 30 ms step."
+        )
+    if model is not None and abs(model.dt - STEP) > DT_TOLERANCE * STEP:
+        problems.append(
+            f"model {model.name!r} has sample time {model.dt:g} s; the controller runs at the "
+            f"plant's {STEP:g} s step, so it needs a model identified at {STEP:g} s."
+        )
     for name, value in (("--Q", args.Q), ("--R", args.R), ("--speed", args.speed)):
         if value is not None and not (np.isfinite(value) and value > 0):
             problems.append(f"{name} must be > 0, found {value}.")

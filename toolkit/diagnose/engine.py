@@ -176,7 +176,16 @@ def diagnose(
         )
     if problems:
         raise OptionError("diagnose cannot run:", problems)
+    # One bar over every stage, so a long baseline identification is not a silent wait.
+    bar = tqdm(
+        total=len(settings.effects) + 2,
+        desc="diagnose: baseline",
+        disable=not progress,
+        unit="step",
+    )
     base = choose_baseline(train, method, settings)
+    bar.update()
+    bar.set_description("diagnose: baseline on validation data")
     ref = score_baseline(base.model, valid)
     ctx = Context(
         train=train,
@@ -185,14 +194,18 @@ def diagnose(
         residuals=analyse(base.model, train),
         seed=seed,
     )
+    bar.update()
     trials: list[Trial] = []
     skipped: list[dict[str, str]] = []
-    for name in tqdm(settings.effects, desc="diagnose", disable=not progress, unit="effect"):
+    for name in settings.effects:
+        bar.set_description(f"diagnose: {name}")
         outcome = try_effect(registry.get(name), name, ctx, ref, valid, settings)
         if isinstance(outcome, Trial):
             trials.append(outcome)
         else:
             skipped.append({"effect": name, "reason": outcome})
+        bar.update()
+    bar.close()
     findings = adjust(trials, settings)
     return conclude(findings, trials, base, ref, train, settings, skipped)
 
@@ -401,6 +414,16 @@ def conclude(
     """Name the cause (or a tie) and assemble the :class:`Diagnosis`."""
     losses = {t.effect: t.loss for t in trials}
     best = _name_cause(findings, losses, settings.alpha, settings.tie_ratio)
+    unfit = None
+    base_fit = _mean(ref.fit)
+    if not base_fit > MIN_BASELINE_FIT:
+        # Errors of a model that does not explain the data say nothing about one cause.
+        unfit = (
+            f"the baseline's validation fit is {base_fit:.1f} %: it explains the validation "
+            "data no better than their mean, so its errors cannot name a cause (identify a "
+            "better baseline, or validate on data like the training data)."
+        )
+        best = None
     findings = [_with_training_fit(f, train) for f in findings]
     if best is not None:
         best = next(f for f in findings if f.effect == best.effect)
@@ -419,6 +442,7 @@ def conclude(
         skipped=tuple(skipped),
         named_effect=best.effect if best else None,
         baseline_check=base.check,
+        unfit=unfit,
     )
 
 
@@ -447,6 +471,9 @@ def _direct_test(
         )
     return {**out, "p_value": p}
 
+
+#: The validation fit (mean over outputs, %) a baseline must exceed to be diagnosed at all.
+MIN_BASELINE_FIT = 0.0
 
 #: A baseline whose training free-run error energy exceeds this multiple of a linear N4SID
 #: model's is treated as biased (:func:`check_baseline`).

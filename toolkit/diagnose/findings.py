@@ -7,6 +7,7 @@ separate the two (:data:`DISCRIMINATING`).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -95,6 +96,8 @@ class Finding:
             "cause": self.cause,
             "effect": self.effect,
             "gain": self.gain,
+            # a candidate whose simulation diverged has no gain (written as null in JSON)
+            "diverged": not math.isfinite(self.gain),
             "fit": self.fit,
             "relative_gain": self.relative_gain,
             "p_value": self.p_value,
@@ -124,10 +127,14 @@ class Diagnosis:
     #: The check of the requested baseline against a linear N4SID reference
     #: (:func:`check_baseline`); ``fallback`` says whether N4SID replaced it.
     baseline_check: dict[str, Any] | None = None
+    #: Why the baseline cannot be diagnosed (its validation fit is not above 0 %), or None.
+    unfit: str | None = None
 
     @property
     def best(self) -> Finding | None:
         """The finding that names the cause (None when the cause is ``none``)."""
+        if self.cause == "none":
+            return None
         if self.named_effect is not None:
             return next((f for f in self.findings if f.effect == self.named_effect), None)
         sig = [f for f in self.findings if f.significant]
@@ -155,6 +162,7 @@ class Diagnosis:
                 "fit": _mean(self.baseline_fit),
                 "fit_per_output": self.baseline_fit,
                 "check": self.baseline_check,
+                "unfit": self.unfit,
             },
             "extended": {
                 "fit": _mean(self.extended_fit),

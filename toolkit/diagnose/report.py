@@ -50,7 +50,9 @@ def write_report(
     rep = Report("tendonkit diagnose", folder)
     rep.heading("Cause")
     best = diagnosis.best
-    if best is None:
+    if diagnosis.unfit:
+        rep.text(f"Unfit for diagnosis: {diagnosis.unfit}")
+    elif best is None:
         rep.text(
             "No candidate extension improved the validation fit significantly: cause 'none'. "
             "The baseline's errors are consistent with noise or with structure none of the "
@@ -76,8 +78,8 @@ def write_report(
     rows = [
         [
             f["cause"],
-            f["gain"],
-            f["relative_gain"] * 100,
+            "diverged" if f.get("diverged") else f["gain"],
+            "diverged" if f.get("diverged") else f["relative_gain"] * 100,
             f.get("p_adjusted", f["p_value"]),
             "yes" if f["significant"] else "no",
             f["n_params"],
@@ -95,7 +97,11 @@ def write_report(
         ],
         rows,
     )
-    rep.figure(plot_ranking(folder, d["findings"]), "Gain of each candidate on held-out data")
+    rep.figure(
+        plot_ranking(folder, d["findings"]),
+        "Gain of each candidate on held-out data (a candidate whose simulation diverged is "
+        "marked, not drawn to scale).",
+    )
     if diagnosis.skipped:
         rep.text(
             "Not applicable: "
@@ -133,9 +139,16 @@ def write_report(
         r = np.nan_to_num(res.residual[:, j])
         rep.figure(
             plot_residual_vs(
-                folder, f"{name}_{cause}", sig, r, label, f"free-run residual of {name}"
+                folder,
+                name if cause == "none" else f"{name} against {label} ({cause})",
+                sig,
+                r,
+                label,
+                f"free-run residual of {name}",
             ),
-            f"Residual of {name} against the signal that explains '{cause}'.",
+            f"Residual of {name} against {label}"
+            + ("" if cause == "none" else f", the signal that explains '{cause}'")
+            + ".",
         )
         strongest = res.strongest.get(name, {})
         m = (
@@ -152,7 +165,8 @@ def write_report(
                 f"{name} vs {valid.inputs[m]}",
                 f"Cross-correlation of one-step residual of {name} with {valid.inputs[m]}",
             ),
-            "Correlation outside the band at a lag is dynamics the model misses at that lag.",
+            f"Cross-correlation of the one-step residual of {name} with {valid.inputs[m]}: "
+            "correlation outside the band at a lag is dynamics the model misses at that lag.",
         )
     rep.heading("Settings")
     rep.pre(str(d["settings"]))

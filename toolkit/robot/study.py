@@ -8,7 +8,7 @@
    the paper's numbers.
 3. Reconstruct all six joints and the end effector; estimate the ratios from the data.
 4. Diagnose the best model: cause, extension, measured gain.
-5. Export the best (extended) model as an FMU and check it in fmpy.
+5. Export the model (extended when a cause was named) as an FMU and check it in fmpy.
 6. Linear MPC (N4SID) and nonlinear MPC (SINDYc) on the petal in co-simulation.
 
 The inputs of every model are the *commanded* tendon forces ``u1..u4``: they are what the MPC
@@ -165,14 +165,19 @@ def _render_reconstruction(rec: dict[str, Any]) -> str:
 
 
 def _diagnose(
-    models: dict[str, Any], table: dict[str, Any], data: dict[str, Any], out: Path, quick: bool
+    models: dict[str, Any],
+    table: dict[str, Any],
+    data: dict[str, Any],
+    out: Path,
+    quick: bool,
+    progress: bool = False,
 ) -> dict[str, Any]:
     best = max(table["models"], key=lambda r: r["mean_fit"])["model"]
     model = models[best]
     options = dict(model.provenance.options)
     if best == "sindyc" and "threshold" in model.provenance.details:
         options["threshold"] = model.provenance.details["threshold"]  # no sweep per candidate
-    result = diagnose(data["train"], data["valid"], method=best, options=options)
+    result = diagnose(data["train"], data["valid"], method=best, options=options, progress=progress)
     path = out / "diagnose" / "extended_model.json"
     path.parent.mkdir(parents=True, exist_ok=True)
     result.extended.save(path)
@@ -278,10 +283,16 @@ def run_demo(
         "reconstruct six joints and the end effector", lambda: _reconstruction(models, data, out)
     )
     print(_render_reconstruction(rec))
-    diag = stages.run("diagnose the best model", lambda: _diagnose(models, table, data, out, quick))
+    diag = stages.run(
+        "diagnose the best model",
+        lambda: _diagnose(models, table, data, out, quick, progress),
+    )
     print(_render_diagnosis(diag))
+    extended = diag["result"].cause != "none"
     exp = stages.run(
-        "export the best (extended) model as an FMU and check it in fmpy",
+        "export the extended model as an FMU and check it in fmpy"
+        if extended
+        else "export the best model (no cause named, nothing extended) as an FMU and check it",
         lambda: _export(diag, data["valid"], out),
     )
     print(
@@ -441,8 +452,9 @@ def _write_report(
                 1e3 * r["rms_error_rad"]["q1"],
                 1e3 * r["rms_error_rad"]["q2"],
                 r["mean_ee_error_cm"],
-                r.get("solve_time_ms", {}).get("median", float("nan")),
-                r.get("solve_time_ms", {}).get("p99", float("nan")),
+                # the open-loop controller solves nothing: say so instead of NaN
+                (r.get("solve_time_ms") or {}).get("median", "no solver"),
+                (r.get("solve_time_ms") or {}).get("p99", "no solver"),
                 r["fallbacks"],
                 r["input_bound_violations"],
             ]

@@ -386,3 +386,18 @@ def test_cli_builds_and_caches_the_default_plant(tmp_path, model_json, monkeypat
     assert data["plant"].startswith(str(tmp_path / "cache"))
     assert main([*args, "--preset", "paper_like", "--json", str(out)]) == 0  # from the cache
     assert len(list((tmp_path / "cache").rglob("*.fmu"))) == 1
+
+
+def test_cli_warns_when_the_model_maps_measured_tensions(tmp_path, plant_fmu, capsys):
+    from tendonkit.schema import Signal
+
+    model = two_mode_model()
+    model = model.replace(inputs=tuple(Signal(f"T{i}", "N") for i in range(1, 5)))
+    path = tmp_path / "t_model.json"
+    model.save(path)
+    code = main(
+        ["mpc", str(path), "--plant", str(plant_fmu), "--reference", "step",
+         "--duration", "1", "--horizon", "5", "--no-progress"]
+    )  # fmt: skip
+    assert code == 0
+    assert "warning: model" in capsys.readouterr().err

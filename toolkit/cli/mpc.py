@@ -198,6 +198,14 @@ def cmd_mpc(args: argparse.Namespace) -> int:
         horizon=args.horizon, Q=args.Q, R=args.R, solver=args.solver, fast=not args.design_path
     )
     raise_problems(problems, "tendonkit mpc cannot run:")
+    assert model is not None
+    if [n.upper() for n in model.input_names] == ["T1", "T2", "T3", "T4"]:
+        print(
+            f"tendonkit: warning: model {model.name!r} maps the measured tensions T1..T4 to the "
+            "angles; the controller sends the commanded forces u1..u4, which reach T through "
+            "the force controller's lag. Identify MPC models on u1..u4 (docs/tutorial.md, 6).",
+            file=sys.stderr,
+        )
     assert model is not None and reference is not None and kind is not None
     return _run(args, model, kind, reference, settings, plant, overrides, params)
 

@@ -311,3 +311,20 @@ def test_na_0_is_a_fir_model_as_documented(capsys, tmp_path, csv_file):
     assert code == 0, err
     rep = json.loads(out.read_text())["representation"]
     assert rep["kind"] == "arx" and rep["A"] == [] and len(rep["B"]) == 20
+
+
+def test_compare_plot_works_for_any_model(capsys, tmp_path, model_file):
+    data, model = model_file  # outputs y1, y2: no robot joints to reconstruct
+    figs = tmp_path / "figs"
+    code, _, err = run(capsys, "compare", data, model, "--plot", figs)
+    assert code == 0, err
+    assert [p.name for p in figs.glob("*.png")] == ["outputs_compare.png"]
+
+
+def test_long_diagnosis_shows_progress_over_every_stage(capsys, small_data):
+    from tendonkit.diagnose import diagnose
+
+    _, train, valid = small_data
+    diagnose(train, valid, effects=["input_delay"], options={"na": 2, "nb": 2}, progress=True)
+    err = capsys.readouterr().err
+    assert "diagnose: baseline" in err and "diagnose: input_delay" in err

@@ -67,3 +67,22 @@ def test_printed_table_parses_and_agrees_with_summary_and_report(demo):
     from tendonkit.registry import CAUSES
 
     assert summary["diagnosis"]["cause"] in CAUSES
+
+
+def test_what_a_newcomer_reads_is_honest(demo):
+    out, stdout = demo
+    text = (out / "summary.json").read_text()
+    # strict JSON: a diverged candidate is null, never -Infinity (JavaScript refuses it)
+    assert "Infinity" not in text and "NaN" not in text
+    json.loads(text, parse_constant=lambda c: pytest.fail(f"non-strict JSON constant {c}"))
+    summary = json.loads(text)
+    extended = summary["diagnosis"]["cause"] != "none" if "diagnosis" in summary else None
+    if extended is False:
+        assert "export the best (extended) model" not in stdout
+    html = (out / "index.html").read_text()
+    assert ">nan<" not in html  # the open-loop row says it has no solver
+    report = (out / "diagnose" / "index.html").read_text()
+    sources = re.findall(r"<img src='([^']*)'", report)
+    assert sources and not any("_none" in s for s in sources), sources
+    captions = re.findall(r"<img src='[^']*' alt='([^']*)'>", report)
+    assert len(captions) == len(set(captions)), "two figures share one caption"

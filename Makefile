@@ -30,12 +30,14 @@ lint: $(STAMP)
 typecheck: $(STAMP)
 	$(BIN)/mypy toolkit plugins fmu
 
-# Both cores (pytest-xdist); every test is safe in parallel (tmp_path, atomic caches).
+# Both cores (pytest-xdist), one BLAS thread per worker (two workers with two BLAS threads each
+# oversubscribe a 2-core machine); every test is safe in parallel (tmp_path, atomic caches).
+ONE_THREAD := OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1
 pytest: $(STAMP)
-	$(BIN)/python -m pytest -q -n auto --durations=15
+	$(ONE_THREAD) $(BIN)/python -m pytest -q -n auto --durations=15
 
 pytest-fast: $(STAMP)
-	$(BIN)/python -m pytest -q -n auto -m "not slow and not real_data"
+	$(ONE_THREAD) $(BIN)/python -m pytest -q -n auto -m "not slow and not real_data"
 
 bench: $(STAMP)
 	$(BIN)/python -m pip install --quiet -r benchmarks/requirements.txt

@@ -86,6 +86,29 @@ def test_a_0_1_model_fmu_simulates_like_tendonkit_simulate():
     np.testing.assert_allclose(y, _expected(u), rtol=1e-9, atol=1e-12)
 
 
+def test_a_0_1_model_fmu_through_fmpy_simulate_fmu():
+    from fmpy import read_model_description, simulate_fmu
+
+    u = _inputs()
+    n = len(u)
+    dt = float(read_model_description(str(LEGACY)).defaultExperiment.stepSize)
+    signals = np.zeros(n, dtype=[("time", float)] + [(f"F{i}", float) for i in range(1, 5)])
+    signals["time"] = np.arange(n) * dt
+    for i in range(4):
+        signals[f"F{i + 1}"] = u[:, i]
+    res = simulate_fmu(
+        str(LEGACY),
+        start_time=0.0,
+        stop_time=(n - 1) * dt,
+        output_interval=dt,
+        input=signals,
+        output=OUTPUTS,
+    )
+    y = np.column_stack([res[name] for name in OUTPUTS])
+    assert y.shape == (n, len(OUTPUTS))
+    np.testing.assert_allclose(y, _expected(u), rtol=1e-9, atol=1e-12)
+
+
 @pytest.mark.parametrize("python_warnings", ["default", "error::DeprecationWarning:__main__"])
 def test_a_0_1_model_fmu_in_a_fresh_interpreter(tmp_path, python_warnings):
     # The slave's `import tendonkit.kinematics` is the first tendonkit import of the process.

@@ -90,9 +90,49 @@ def test_a_clean_fake_tree_passes(tmp_path):
             "not a room's door",
         ),
         (
+            rooms.room_violations,
+            {"toolkit/metrics.py": "def f():\n    from tendonkit.plugins import arx  # lazy: x\n"},
+            "core imports tendonkit.plugins (plugins)",
+        ),
+        (
+            rooms.room_violations,
+            {"toolkit/diagnose/engine.py": "from ..robot import kinematics\n"},
+            "diagnose imports tendonkit.robot.kinematics (robot)",
+        ),
+        (
+            rooms.room_violations,
+            {"toolkit/cli/__init__.py": "", "toolkit/robot/study.py": "from ..cli import main\n"},
+            "robot imports tendonkit.cli (cli)",
+        ),
+        (
+            rooms.room_violations,
+            {"toolkit/cli/__init__.py": "", "fmu/build.py": "from tendonkit.cli import main\n"},
+            "fmu imports tendonkit.cli (cli)",
+        ),
+        (
+            rooms.room_violations,
+            {"plugins/arx.py": "from tendonkit.robot.kinematics import X\n"},
+            "plugins imports tendonkit.robot.kinematics (robot)",
+        ),
+        (
             rooms.style_violations,
             {"toolkit/metrics.py": "from tendonkit.schema import X\n"},
             "absolute import of tendonkit.schema inside toolkit/",
+        ),
+        (
+            rooms.style_violations,
+            {"plugins/arx.py": "from ..schema import X\n"},
+            "relative import of tendonkit.schema across folders",
+        ),
+        (
+            rooms.private_violations,
+            {"toolkit/robot/study.py": "from .._simulate_arx import run\n"},
+            "imports private tendonkit._simulate_arx.run",
+        ),
+        (
+            rooms.lazy_violations,
+            {"plugins/arx.py": "def f():\n    import numpy as np  # lazy: why not\n"},
+            "numpy imported inside a function",
         ),
         (
             rooms.private_violations,
@@ -115,6 +155,32 @@ def test_each_rule_reports_a_tree_that_breaks_it(tmp_path, check, files, needle)
     root = _tree(tmp_path, {**BASE, **files})
     found = check(root)
     assert any(needle in v for v in found), found
+
+
+def test_what_the_rules_allow_passes(tmp_path):
+    files = {
+        # plugins may use the rooms' doors and the core
+        "plugins/arx.py": "from tendonkit.diagnose import diagnose\nfrom tendonkit.schema import X\n",
+        # a type-only import of another room, and a private name inside one's own room
+        "toolkit/metrics.py": (
+            "from typing import TYPE_CHECKING\n"
+            "from ._simulate_arx import run\n"
+            "if TYPE_CHECKING:\n"
+            "    from .robot.kinematics import X\n"
+        ),
+        "toolkit/_simulate_arx.py": "def run():\n    return 1\n",
+        # robot may import the generic rooms and fmu/ (absolutely: fmu/ is another folder)
+        "toolkit/robot/study.py": (
+            "from tendonkit.fmu import build\nfrom ..diagnose import diagnose\n"
+            "def f():\n    from tendonkit.fmu import build  # lazy: keeps study off fmu/\n"
+        ),
+        "fmu/build.py": "from tendonkit.robot.kinematics import X\n",
+    }
+    root = _tree(tmp_path, {**BASE, **files})
+    for check in (rooms.room_violations, rooms.style_violations, rooms.private_violations):
+        assert check(root) == [], check.__name__
+    assert rooms.lazy_violations(root) == []
+    assert rooms.cycles(root) == []
 
 
 def test_a_lazy_import_with_its_reason_passes(tmp_path):

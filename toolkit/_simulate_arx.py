@@ -13,6 +13,7 @@ import dataclasses
 import numpy as np
 from numpy.typing import NDArray
 
+from . import _kernel
 from ._response import Initial, ss_response
 from .errors import DataError
 from .realize import arx_lag_matrices, arx_to_state_space
@@ -37,7 +38,12 @@ def _arx_parts(model: Model, rep: ARX) -> tuple[FloatArray, list[FloatArray], Fl
 
 
 def _sim_arx(
-    model: Model, rep: ARX, u: FloatArray, y: FloatArray | None, initial: Initial
+    model: Model,
+    rep: ARX,
+    u: FloatArray,
+    y: FloatArray | None,
+    initial: Initial,
+    compiled: bool = True,
 ) -> FloatArray:
     ny, nu = len(model.outputs), len(model.inputs)
     N = u.shape[0]
@@ -92,6 +98,25 @@ def _sim_arx(
     # recursion linear with time-varying coefficients; only the rest are evaluated per step.
     M, forced, general, gcoef = _time_varying_part(model, rep, U, forced, L, N, coef)
     width = M.shape[2] // ny
+    if compiled:
+        flat = _kernel.flatten(
+            general,
+            {n: j for j, n in enumerate(model.input_names)},
+            {n: j for j, n in enumerate(model.output_names)},
+        )
+        _kernel.run_terms(
+            _kernel.arx_loop,
+            U,
+            Y,
+            np.ascontiguousarray(forced),
+            np.ascontiguousarray(M),
+            width,
+            start,
+            L,
+            np.ascontiguousarray(gcoef.T),
+            flat=flat,
+        )
+        return Y[L:]
     ct = CompiledTerms(general) if general else None
     evaluate = scalar_evaluator(ct) if ct is not None else None
     reads: list[tuple[FloatArray, int, int]] = []

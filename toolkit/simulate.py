@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from . import _kernel
 from ._response import (
     Initial,
     delay_taps,
@@ -36,8 +37,12 @@ from .terms import CompiledTerms, series_getter
 FloatArray = NDArray[np.float64]
 
 
-def apply_block(block: Block, s: FloatArray) -> FloatArray:
-    """Apply one block to a signal sequence ``s`` (n,) and return the new sequence."""
+def apply_block(block: Block, s: FloatArray, compiled: bool = True) -> FloatArray:
+    """Apply one block to a signal sequence ``s`` (n,) and return the new sequence.
+
+    ``compiled=False`` runs the reference (pure numpy/Python) form of the play and rate-limit
+    loops instead of the compiled kernel.
+    """
     p = block.params
     if block.kind == "delay":
         return fractional_delay(s, float(p["samples"]))
@@ -48,6 +53,10 @@ def apply_block(block: Block, s: FloatArray) -> FloatArray:
     if block.kind == "saturation":
         return np.clip(s, p["lower"], p["upper"])
     if block.kind == "play":
+        if compiled and s.shape[0]:
+            return np.asarray(
+                _kernel.play_loop(np.ascontiguousarray(s, dtype=float), float(p["width"]), s[0])
+            )
         return play_operator(s, p["width"])
     if block.kind == "first_order_lag":
         # lazy: heavy (scipy)
@@ -57,6 +66,10 @@ def apply_block(block: Block, s: FloatArray) -> FloatArray:
         out = lfilter([0.0, 1.0 - a], [1.0, -a], s - s[0]) + s[0]
         return np.asarray(out)
     if block.kind == "rate_limit":
+        if compiled and s.shape[0]:
+            return np.asarray(
+                _kernel.rate_loop(np.ascontiguousarray(s, dtype=float), float(p["rate"]))
+            )
         return rate_limiter(s, p["rate"])
     raise SimulationError(f"Unknown block kind {block.kind!r}.")  # pragma: no cover
 
@@ -85,13 +98,15 @@ def play_operator(s: FloatArray, width: float, start: float | None = None) -> Fl
     return out
 
 
-def _apply_blocks(blocks: tuple[Block, ...], names: list[str], arr: FloatArray) -> FloatArray:
+def _apply_blocks(
+    blocks: tuple[Block, ...], names: list[str], arr: FloatArray, compiled: bool = True
+) -> FloatArray:
     if not blocks:
         return arr
     out = arr.copy()
     for b in blocks:
         j = names.index(b.signal)
-        out[:, j] = apply_block(b, out[:, j])
+        out[:, j] = apply_block(b, out[:, j], compiled)
     return out
 
 
@@ -127,6 +142,7 @@ def simulate(
     *,
     y: FloatArray | None = None,
     initial: Initial | None = None,
+    engine: str = "compiled",
 ) -> FloatArray:
     """Free-run simulation of ``model`` driven by inputs ``u`` (n, nu).
 
@@ -141,6 +157,10 @@ def simulate(
     initial : {"zero", "model", "estimate"} or array, optional
         Initial-state policy (module docstring).  Default: ``"estimate"`` when ``y`` is given,
         otherwise ``"model"``.
+    engine : {"compiled", "reference"}
+        ``"compiled"`` (default) runs the per-sample loops in the numba kernel
+        (:mod:`tendonkit._kernel`); ``"reference"`` runs the numpy implementation it is tested
+        against (equal to 1e-12).
 
     Returns
     -------
@@ -165,23 +185,31 @@ def simulate(
         raise DataError(
             f"initial must be 'zero', 'model', 'estimate' or an array, found {initial!r}."
         )
-    ub = _apply_blocks(model.input_blocks, model.input_names, u)
+    if engine not in ("compiled", "reference"):
+        raise DataError(f"engine must be 'compiled' or 'reference', found {engine!r}.")
+    fast = engine == "compiled"
+    ub = _apply_blocks(model.input_blocks, model.input_names, u, fast)
     rep = model.representation
     # A diverging simulation overflows on its way to NaN; that is reported through the NaN
     # outputs (and a fit of -inf), not through floating-point warnings.
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         if isinstance(rep, StateSpace) and rep.terms:
-            ys = _sim_ss_terms(model, rep, ub, y, initial)
+            ys = _sim_ss_terms(model, rep, ub, y, initial, fast)
         elif isinstance(rep, StateSpace):
             ys = _sim_ss(rep, ub, y, initial)
         elif isinstance(rep, ARX):
-            ys = _sim_arx(model, rep, ub, y, initial)
+            ys = _sim_arx(model, rep, ub, y, initial, fast)
         else:
-            ys = _sim_sparse(model, rep, ub, y, initial)
-    if not np.all(np.isfinite(ys)):
-        bad = int(np.argmax(~np.all(np.isfinite(ys), axis=1)))
-        ys[bad:] = np.nan
-    return _apply_blocks(model.output_blocks, model.output_names, ys)
+            ys = _sim_sparse(model, rep, ub, y, initial, fast)
+    if np.all(np.isfinite(ys)):
+        return _apply_blocks(model.output_blocks, model.output_names, ys, fast)
+    # Diverged: nothing from the first non-finite sample on is meaningful, also after an
+    # output block (a play operator would otherwise hold its last finite value).
+    bad = int(np.argmax(~np.all(np.isfinite(ys), axis=1)))
+    ys[bad:] = np.nan
+    out = _apply_blocks(model.output_blocks, model.output_names, ys, fast)
+    out[bad:] = np.nan
+    return out
 
 
 def simulate_dataset(
@@ -301,7 +329,12 @@ def ss_theta_measured(model: Model, u: FloatArray, y: FloatArray) -> FloatArray:
 
 
 def _sim_ss_terms(
-    model: Model, rep: StateSpace, u: FloatArray, y: FloatArray | None, initial: Initial
+    model: Model,
+    rep: StateSpace,
+    u: FloatArray,
+    y: FloatArray | None,
+    initial: Initial,
+    compiled: bool = True,
 ) -> FloatArray:
     """State space with nonlinear terms of past outputs: a loop over samples."""
     assert rep.E is not None
@@ -319,6 +352,24 @@ def _sim_ss_terms(
     }
     if y is not None and isinstance(initial, str) and initial == "estimate":
         Y[:L] = y[0]
+    if compiled:
+        flat = _kernel.flatten(
+            rep.terms,
+            {n: j for j, n in enumerate(model.input_names)},
+            {n: j for j, n in enumerate(model.output_names)},
+        )
+        c = np.ascontiguousarray
+        _kernel.run_terms(
+            _kernel.ss_terms_loop,
+            U,
+            Y,
+            c(u, dtype=float),
+            c(x, dtype=float),
+            *(c(m, dtype=float) for m in (rep.A, rep.B, rep.C, rep.D, rep.E)),
+            L,
+            flat=flat,
+        )
+        return Y[L:]
     keys = ct.keys
     for k in range(N):
         kk = k + L
@@ -352,7 +403,12 @@ def estimate_x0(
 
 
 def _sim_sparse(
-    model: Model, rep: SparseMap, u: FloatArray, y: FloatArray | None, initial: Initial
+    model: Model,
+    rep: SparseMap,
+    u: FloatArray,
+    y: FloatArray | None,
+    initial: Initial,
+    compiled: bool = True,
 ) -> FloatArray:
     nx = rep.n_states
     N = u.shape[0]
@@ -380,6 +436,16 @@ def _sim_sparse(
     for j, name in enumerate(model.input_names):
         hist[name] = U[:, j]
     coef = rep.coefficients
+    if compiled:
+        flat = _kernel.flatten(
+            rep.terms,
+            {n: j for j, n in enumerate(model.input_names)},
+            {s.name: j for j, s in enumerate(model.states)},
+        )
+        _kernel.run_terms(
+            _kernel.sparse_loop, U, X, np.ascontiguousarray(coef, dtype=float), L, flat=flat
+        )
+        return X[L:, list(rep.output_states)]
     keys = ct.keys
     for k in range(N - 1):
         kk = k + L

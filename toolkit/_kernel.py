@@ -1,0 +1,289 @@
+"""Compiled simulation kernel: the per-sample loops of :mod:`tendonkit.simulate`, in numba.
+
+Every recursion that cannot be vectorised (an ARX model with nonlinear terms or time-varying
+coefficients, a state space with terms, a sparse map, the play and rate-limit blocks) runs here
+as machine code.  The model is never compiled: its terms are *interpreted* from flat arrays
+(:class:`FlatTerms`), so the few kernels below are compiled once per machine (``cache=True``
+keeps them on disk) and serve every model — diagnose builds hundreds of candidate models and
+pays no compiler per model.  docs/design-decisions.md ("A compiled kernel that interprets
+terms") says why this design and not code generation per model.
+
+The numpy code in :mod:`tendonkit.simulate` stays as the reference (``engine="reference"``);
+``tests/core/test_kernel.py`` holds the two equal to 1e-12 on random models of every kind,
+including where a simulation diverges.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+from numpy.typing import NDArray
+
+from .terms import FUNCTIONS, Term
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+_CODE = {name: i for i, name in enumerate(FUNCTIONS)}
+assert list(_CODE) == [
+    "pow",
+    "sin",
+    "cos",
+    "tanh",
+    "sign",
+    "abs",
+    "dead_zone",
+    "sat",
+    "relu",
+], "the kernel's function codes follow terms.FUNCTIONS"
+
+
+@dataclass(frozen=True)
+class FlatTerms:
+    """Terms as flat arrays (one row per factor; ``ptr[t]:ptr[t+1]`` are term ``t``'s factors).
+
+    ``src`` says which buffer a factor reads (0: the first, e.g. inputs; 1: the second, outputs
+    or states), ``col`` its column, ``lag``/``diff`` how far back.
+    """
+
+    ptr: IntArray
+    src: IntArray
+    col: IntArray
+    lag: IntArray
+    diff: IntArray
+    code: IntArray
+    power: FloatArray
+    scale: FloatArray
+    offset: FloatArray
+    param: FloatArray
+
+    @property
+    def n_terms(self) -> int:
+        """Number of terms."""
+        return int(self.ptr.shape[0] - 1)
+
+
+def flatten(
+    terms: Sequence[Term], first: Mapping[str, int], second: Mapping[str, int]
+) -> FlatTerms:
+    """Flat arrays for ``terms`` reading signals by name from two buffers."""
+    rows: list[tuple[int, int, int, int, int, float, float, float, float]] = []
+    ptr = [0]
+    for t in terms:
+        for f in t.factors:
+            src, col = (0, first[f.signal]) if f.signal in first else (1, second[f.signal])
+            rows.append(
+                (src, col, f.lag, f.diff, _CODE[f.fn], float(f.power), f.scale, f.offset, f.param)
+            )
+        ptr.append(len(rows))
+    cols = list(zip(*rows, strict=True)) if rows else [()] * 9
+    i = [np.asarray(c, dtype=np.int64) for c in cols[:5]]
+    x = [np.asarray(c, dtype=np.float64) for c in cols[5:]]
+    return FlatTerms(
+        np.asarray(ptr, dtype=np.int64), i[0], i[1], i[2], i[3], i[4], x[0], x[1], x[2], x[3]
+    )
+
+
+# -- the kernels ---------------------------------------------------------------------------------
+
+
+@njit(cache=True, nogil=True)
+def _fn(code: int, z: float, power: float, param: float) -> float:  # pragma: no cover - numba
+    if code == 0:
+        return z**power
+    if code == 1:
+        return np.sin(z)
+    if code == 2:
+        return np.cos(z)
+    if code == 3:
+        return np.tanh(z)
+    if code == 4:
+        if z > 0.0:
+            return 1.0
+        if z < 0.0:
+            return -1.0
+        return 0.0 if z == 0.0 else z
+    if code == 5:
+        return abs(z)
+    if code == 6:
+        m = abs(z) - param
+        if m < 0.0:
+            m = 0.0
+        return m if z > 0.0 else (-m if z < 0.0 else 0.0 * m)
+    if code == 7:
+        return min(max(z, -param), param)
+    m = z - param
+    return m if m > 0.0 else 0.0
+
+
+@njit(cache=True, nogil=True)
+def _terms_at(  # pragma: no cover - numba
+    a, b, kk, ptr, src, col, lag, diff, code, power, scale, offset, param, theta
+):
+    for t in range(ptr.shape[0] - 1):
+        prod = 1.0
+        for f in range(ptr[t], ptr[t + 1]):
+            buf = a if src[f] == 0 else b
+            s = buf[kk - lag[f], col[f]]
+            if diff[f]:
+                s = s - buf[kk - lag[f] - diff[f], col[f]]
+            prod *= _fn(code[f], (s - offset[f]) * scale[f], power[f], param[f])
+        theta[t] = prod
+
+
+@njit(cache=True, nogil=True)
+def arx_loop(  # pragma: no cover - numba
+    U,
+    Y,
+    forced,
+    M,
+    width,
+    start,
+    L,
+    gcoef_t,
+    ptr,
+    src,
+    col,
+    lag,
+    diff,
+    code,
+    power,
+    scale,
+    offset,
+    param,
+):
+    """``Y[k+L] = forced[k] + M[k]·[Y[k+L-1]; …; Y[k+L-width]] + gcoef_t·θ(k)`` from ``start``.
+
+    ``Y`` (padded with ``L`` samples of history) is written in place; the first sample where
+    an output turns non-finite and every later one are NaN.
+    """
+    N = forced.shape[0]
+    ny = Y.shape[1]
+    nt = ptr.shape[0] - 1
+    theta = np.empty(nt)
+    for k in range(start, N):
+        kk = k + L
+        if nt:
+            _terms_at(U, Y, kk, ptr, src, col, lag, diff, code, power, scale, offset, param, theta)
+        ok = True
+        for i in range(ny):
+            acc = forced[k, i]
+            for w in range(width):
+                for j in range(ny):
+                    acc += M[k, i, w * ny + j] * Y[kk - 1 - w, j]
+            for t in range(nt):
+                acc += gcoef_t[i, t] * theta[t]
+            Y[kk, i] = acc
+            if not np.isfinite(acc):
+                ok = False
+        if not ok:
+            Y[kk:] = np.nan
+            return
+
+
+@njit(cache=True, nogil=True)
+def ss_terms_loop(  # pragma: no cover - numba
+    U, Y, u, x, A, B, C, D, E, L, ptr, src, col, lag, diff, code, power, scale, offset, param
+):
+    """State space with terms: ``y = Cx + Du``, ``x⁺ = Ax + Bu + Eθ``; θ reads ``U`` and ``Y``."""
+    N = u.shape[0]
+    n, ny, nu = A.shape[0], C.shape[0], u.shape[1]
+    theta = np.empty(ptr.shape[0] - 1)
+    xn = np.empty(n)
+    for k in range(N):
+        kk = k + L
+        for i in range(ny):
+            acc = 0.0
+            for j in range(n):
+                acc += C[i, j] * x[j]
+            for j in range(nu):
+                acc += D[i, j] * u[k, j]
+            Y[kk, i] = acc
+        _terms_at(U, Y, kk, ptr, src, col, lag, diff, code, power, scale, offset, param, theta)
+        ok = True
+        for i in range(n):
+            acc = 0.0
+            for j in range(n):
+                acc += A[i, j] * x[j]
+            for j in range(nu):
+                acc += B[i, j] * u[k, j]
+            for t in range(theta.shape[0]):
+                acc += E[i, t] * theta[t]
+            xn[i] = acc
+            if not np.isfinite(acc):
+                ok = False
+        x[:] = xn
+        if not ok:
+            Y[kk + 1 :] = np.nan
+            return
+
+
+@njit(cache=True, nogil=True)
+def sparse_loop(  # pragma: no cover - numba
+    U, X, coef, L, ptr, src, col, lag, diff, code, power, scale, offset, param
+):
+    """Sparse map ``x[k+1] = θ(k)ᵀ·coef``; θ reads inputs ``U`` and states ``X`` (in place)."""
+    N = U.shape[0] - L
+    nx = X.shape[1]
+    nt = ptr.shape[0] - 1
+    theta = np.empty(nt)
+    for k in range(N - 1):
+        kk = k + L
+        _terms_at(U, X, kk, ptr, src, col, lag, diff, code, power, scale, offset, param, theta)
+        ok = True
+        for i in range(nx):
+            acc = 0.0
+            for t in range(nt):
+                acc += theta[t] * coef[t, i]
+            X[kk + 1, i] = acc
+            if not np.isfinite(acc):
+                ok = False
+        if not ok:
+            X[kk + 1 :] = np.nan
+            return
+
+
+@njit(cache=True, nogil=True)
+def play_loop(s, width, start):  # pragma: no cover - numba
+    """Play (backlash) operator of half-width ``width`` from ``start``."""
+    out = np.empty_like(s)
+    v = start
+    for k in range(s.shape[0]):
+        x = s[k]
+        if x - v > width:
+            v = x - width
+        elif x - v < -width:
+            v = x + width
+        out[k] = v
+    return out
+
+
+@njit(cache=True, nogil=True)
+def rate_loop(s, rate):  # pragma: no cover - numba
+    """Follow ``s`` with at most ``rate`` change per sample, from ``s[0]``."""
+    out = np.empty_like(s)
+    v = s[0]
+    for k in range(s.shape[0]):
+        v += min(max(s[k] - v, -rate), rate)
+        out[k] = v
+    return out
+
+
+def run_terms(kernel, *args, flat: FlatTerms):  # type: ignore[no-untyped-def]
+    """Call ``kernel(*args, <flat terms>)``."""
+    return kernel(
+        *args,
+        flat.ptr,
+        flat.src,
+        flat.col,
+        flat.lag,
+        flat.diff,
+        flat.code,
+        flat.power,
+        flat.scale,
+        flat.offset,
+        flat.param,
+    )

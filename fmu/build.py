@@ -373,6 +373,13 @@ def model_fmu_problems(model: Model, kinematics: bool = True) -> list[str]:
                 f"pan and tilt joints, rad); model {model.name!r} has outputs "
                 f"{', '.join(model.output_names)}. Rename them or export with --no-kinematics."
             )
+        other = [f"{s.name} [{s.unit}]" for s in model.outputs if s.name in ("q1", "q2") and s.unit]
+        if any(s.unit not in ("", "rad") for s in model.outputs if s.name in ("q1", "q2")):
+            problems.append(
+                f"the kinematic reconstruction computes in rad, but model {model.name!r} has "
+                f"{', '.join(other)}: identify it from angles in rad, or export with "
+                "--no-kinematics."
+            )
         taken = sorted(set(model.input_names + model.output_names) & {*JOINTS, *EE, *RATIO_NAMES})
         if taken:
             problems.append(

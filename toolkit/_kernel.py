@@ -139,11 +139,11 @@ def arx_loop(  # pragma: no cover - numba
     U,
     Y,
     forced,
-    M,
-    width,
+    Acat,
+    na,
     start,
     L,
-    gcoef_t,
+    coef_t,
     ptr,
     src,
     col,
@@ -155,10 +155,11 @@ def arx_loop(  # pragma: no cover - numba
     offset,
     param,
 ):
-    """``Y[k+L] = forced[k] + M[k]·[Y[k+L-1]; …; Y[k+L-width]] + gcoef_t·θ(k)`` from ``start``.
+    """``Y[k+L] = forced[k] - Acat·[Y[k+L-1]; …; Y[k+L-na]] + coef_t·θ(k)`` from ``start``.
 
-    ``Y`` (padded with ``L`` samples of history) is written in place; the first sample where
-    an output turns non-finite and every later one are NaN.
+    ``forced`` holds the input contribution and the offset; ``Y`` (padded with ``L`` samples
+    of history) is written in place; the first sample where an output turns non-finite and
+    every later one are NaN.
     """
     N = forced.shape[0]
     ny = Y.shape[1]
@@ -171,11 +172,11 @@ def arx_loop(  # pragma: no cover - numba
         ok = True
         for i in range(ny):
             acc = forced[k, i]
-            for w in range(width):
+            for w in range(na):
                 for j in range(ny):
-                    acc += M[k, i, w * ny + j] * Y[kk - 1 - w, j]
+                    acc -= Acat[i, w * ny + j] * Y[kk - 1 - w, j]
             for t in range(nt):
-                acc += gcoef_t[i, t] * theta[t]
+                acc += coef_t[i, t] * theta[t]
             Y[kk, i] = acc
             if not np.isfinite(acc):
                 ok = False

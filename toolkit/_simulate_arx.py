@@ -62,8 +62,8 @@ def _sim_arx(
         Y[:L] = y[0]
     elif not isinstance(initial, str):
         raise DataError("ARX models take initial='zero', 'model' or 'estimate', not an array.")
-    ct = CompiledTerms(rep.terms) if rep.terms else None
-    if (ct is None or rep.term_coefficients is None) and ny > 1 and N - start >= 512:
+    linear = not rep.terms or rep.term_coefficients is None
+    if linear and ny > 1 and N - start >= 512:
         Y[L + start :] = _arx_block(rep, U, Y, off, L, start, N)
         return Y[L:]
     # Input contribution for every sample at once (the inputs are known).
@@ -73,7 +73,7 @@ def _sim_arx(
             forced += U[L - lag : L - lag + N] @ Gl.T
     na = rep.na
     coef = rep.term_coefficients
-    if (ct is None or coef is None) and ny == 1 and start < N:
+    if linear and ny == 1 and start < N:
         # Single output: the recursion is an IIR filter of the input contribution (C speed).
         # lazy: heavy (scipy.signal)
         from scipy.signal import lfilter, lfiltic
@@ -85,6 +85,29 @@ def _sim_arx(
         else:
             Y[L + start :, 0] = lfilter([1.0], a, forced[start:, 0], zi=zi)[0]
         return Y[L:]
+    if compiled:
+        # Every term is evaluated per step from flat arrays (no time-varying split needed).
+        terms = () if linear else rep.terms
+        flat = _kernel.flatten(
+            terms,
+            {n: j for j, n in enumerate(model.input_names)},
+            {n: j for j, n in enumerate(model.output_names)},
+        )
+        coef_t = np.zeros((ny, 0)) if coef is None or linear else np.ascontiguousarray(coef.T)
+        _kernel.run_terms(
+            _kernel.arx_loop,
+            U,
+            Y,
+            forced,
+            np.ascontiguousarray(Acat, dtype=float),
+            na,
+            start,
+            L,
+            coef_t,
+            flat=flat,
+        )
+        return Y[L:]
+    ct = None if linear else CompiledTerms(rep.terms)
     if ct is None or coef is None:
         for k in range(start, N):
             kk = k + L
@@ -98,25 +121,6 @@ def _sim_arx(
     # recursion linear with time-varying coefficients; only the rest are evaluated per step.
     M, forced, general, gcoef = _time_varying_part(model, rep, U, forced, L, N, coef)
     width = M.shape[2] // ny
-    if compiled:
-        flat = _kernel.flatten(
-            general,
-            {n: j for j, n in enumerate(model.input_names)},
-            {n: j for j, n in enumerate(model.output_names)},
-        )
-        _kernel.run_terms(
-            _kernel.arx_loop,
-            U,
-            Y,
-            np.ascontiguousarray(forced),
-            np.ascontiguousarray(M),
-            width,
-            start,
-            L,
-            np.ascontiguousarray(gcoef.T),
-            flat=flat,
-        )
-        return Y[L:]
     ct = CompiledTerms(general) if general else None
     evaluate = scalar_evaluator(ct) if ct is not None else None
     reads: list[tuple[FloatArray, int, int]] = []

@@ -19,7 +19,8 @@ from __future__ import annotations
 import csv
 import hashlib
 import io
-from collections.abc import Iterable, Sequence
+import re
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -40,7 +41,8 @@ DT_TOLERANCE = 0.01
 class Experiment:
     """One uninterrupted record: time ``t`` (n,), inputs ``u`` (n, nu), outputs ``y`` (n, ny).
 
-    ``extra`` holds every other numeric column of the source (e.g. ``q3`` or ``ee_x``).
+    ``extra`` holds every other numeric column of the source (e.g. ``q3`` or ``ee_x``);
+    ``units`` the units its file's header gave (``q1 [rad]``), by column name.
     """
 
     t: FloatArray
@@ -48,6 +50,7 @@ class Experiment:
     y: FloatArray
     name: str = ""
     extra: dict[str, FloatArray] = field(default_factory=dict)
+    units: dict[str, str] = field(default_factory=dict)
 
     @property
     def n_samples(self) -> int:
@@ -120,28 +123,65 @@ class Dataset:
         dt_tolerance: float = DT_TOLERANCE,
         min_samples: int = 2,
         require_outputs: bool = True,
+        units: Mapping[str, str] | None = None,
     ) -> Dataset:
         """Read one experiment per CSV file (header row, time column ``time`` in seconds).
 
-        Every problem in every file is collected and reported in one :class:`DataError`.
+        A header cell may carry its unit in brackets, ``q1 [rad]``: the column is ``q1`` and
+        its unit ``rad`` (:func:`split_header`).  ``units`` gives units for columns whose header
+        has none; a unit that contradicts the header, or two files that give one column
+        different units, are problems.  Every problem in every file is collected and reported
+        in one :class:`DataError`.
         """
         if isinstance(paths, str | Path):
             paths = [paths]
         problems: list[str] = []
         exps: list[Experiment] = []
         dts: list[float] = []
+        requested = [*inputs, *outputs]
+        found: dict[str, tuple[str, str]] = {}  # column -> (unit, file that said so)
         for path in paths:
             exp, dt, probs = _read_csv(Path(path), list(inputs), list(outputs), time, dt_tolerance)
             problems.extend(probs)
             if exp is not None:
                 exps.append(exp)
                 dts.append(dt)
+                for name, unit in exp.units.items():
+                    if name not in requested:
+                        continue
+                    if name in found and found[name][0] != unit:
+                        problems.append(
+                            f"column {name!r} is in {found[name][0]!r} in {found[name][1]} but in "
+                            f"{unit!r} in {path}."
+                        )
+                    found.setdefault(name, (unit, str(path)))
+        merged = {name: unit for name, (unit, _) in found.items()}
+        for name, unit in (units or {}).items():
+            unit_problem = _unit_problem(unit)
+            if unit_problem:
+                problems.append(f"unit of {name!r}: {unit_problem}")
+            elif name not in requested:
+                problems.append(
+                    f"a unit is given for {name!r}, which is not an input or output "
+                    f"({', '.join(requested)})."
+                )
+            elif name in merged and merged[name] != unit:
+                problems.append(
+                    f"column {name!r}: the header says {merged[name]!r}, the units given say "
+                    f"{unit!r}."
+                )
+            else:
+                merged[name] = unit
         if dts and max(dts) - min(dts) > dt_tolerance * min(dts):
             problems.append(f"the files have different sample times: {sorted(set(dts))} s.")
         if problems:
             raise DataError("The data cannot be used:", problems)
         ds = cls(
-            inputs=tuple(inputs), outputs=tuple(outputs), experiments=tuple(exps), dt=float(dts[0])
+            inputs=tuple(inputs),
+            outputs=tuple(outputs),
+            experiments=tuple(exps),
+            dt=float(dts[0]),
+            units=merged,
         )
         ds.validate(
             source=", ".join(str(p) for p in paths),
@@ -373,8 +413,14 @@ def _read_csv(
         return None, 0.0, [f"{where}: the file is empty; a header row is expected."]
     while rows and not any(c.strip() for c in rows[-1]):
         rows.pop()  # trailing blank lines end many files
-    header = [h.strip() for h in header]
     p: list[str] = []
+    split = [split_header(h) for h in header]
+    header = [name for name, _ in split]
+    file_units = {name: unit for name, unit in split if unit}
+    for name, unit in file_units.items():
+        unit_problem = _unit_problem(unit)
+        if unit_problem:
+            p.append(f"{where}: unit of column {name!r}: {unit_problem}")
     dup_cols = sorted({h for h in header if header.count(h) > 1})
     if dup_cols:
         p.append(f"{where}: duplicate column names in the header: {dup_cols}.")
@@ -474,12 +520,48 @@ def _read_csv(
         y=values[:, [idx[n] for n in outputs]] if outputs else np.zeros((len(t), 0)),
         name=path.stem,
         extra=extra,
+        units=file_units,
     )
     return exp, dt, []
 
 
-def write_csv(path: str | Path, columns: dict[str, FloatArray]) -> Path:
+#: A header cell with its unit: ``name [unit]``.
+_UNIT_CELL = re.compile(r"^(?P<name>.*?)\s*\[(?P<unit>[^\[\]]*)\]$")
+
+
+def split_header(cell: str) -> tuple[str, str]:
+    """Column name and unit of a CSV header cell: ``"q1 [rad]"`` -> ``("q1", "rad")``.
+
+    A cell without a bracketed unit at its end has the unit ``""`` (unknown).
+
+    >>> split_header(" q1 [rad] "), split_header("T1"), split_header("t[s]")
+    (('q1', 'rad'), ('T1', ''), ('t', 's'))
+    """
+    cell = cell.strip()
+    m = _UNIT_CELL.match(cell)
+    if m is None:
+        return cell, ""
+    return m.group("name").strip(), m.group("unit").strip()
+
+
+def _unit_problem(unit: str) -> str | None:
+    """Why ``unit`` cannot be a unit, or None."""
+    if not isinstance(unit, str):
+        return f"expected text, found {unit!r}."
+    if not unit.isprintable() or any(c in unit for c in ",;\"'[]"):
+        return f"{unit!r} has separators, brackets, quotes or control characters."
+    if len(unit) > 40:
+        return f"{unit[:40]!r}... is longer than 40 characters."
+    return None
+
+
+def write_csv(
+    path: str | Path, columns: dict[str, FloatArray], units: Mapping[str, str] | None = None
+) -> Path:
     """Write named columns (equal length) as CSV with full float precision.
+
+    Columns with a unit in ``units`` get the header cell ``name [unit]`` (:func:`split_header`
+    reads it back).
 
     Raises
     ------
@@ -495,8 +577,13 @@ def write_csv(path: str | Path, columns: dict[str, FloatArray]) -> Path:
             "Column names cannot be written to a CSV header (no separators, quotes or control "
             f"characters): {', '.join(repr(n) for n in bad)}."
         )
+    units = {n: u for n, u in (units or {}).items() if u and n in columns}
+    bad_units = [f"{n}: {why}" for n, u in units.items() if (why := _unit_problem(u))]
+    if bad_units:
+        raise DataError("Units cannot be written to a CSV header:", bad_units)
     data = np.column_stack([np.asarray(columns[n], dtype=float) for n in names])
+    cells = [f"{n} [{units[n]}]" if n in units else n for n in names]
     with path.open("w", newline="", encoding="utf-8") as fh:
-        fh.write(",".join(names) + "\n")
+        fh.write(",".join(cells) + "\n")
         np.savetxt(fh, data, delimiter=",", fmt="%.17g")
     return path

@@ -15,6 +15,7 @@ simulated outputs after them.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -234,6 +235,25 @@ def check_sample_time(model: Model, dt: float, what: str = "the data") -> None:
         )
 
 
+def check_units(model: Model, units: Mapping[str, str], what: str = "the data") -> None:
+    """Raise :class:`DataError` listing every signal whose unit differs between model and data.
+
+    A unit that either side does not know (``""``) is not checked: a CSV without units in its
+    header (``q1 [rad]``) meets any model.
+    """
+    clash = [
+        f"{s.name}: the model's is {s.unit!r}, {what} give {units[s.name]!r}"
+        for s in (*model.inputs, *model.outputs)
+        if s.unit and units.get(s.name) and units[s.name] != s.unit
+    ]
+    if clash:
+        raise DataError(
+            f"Model {model.name!r} and {what} disagree on units (convert the data, or fix the "
+            "units in the CSV header):",
+            clash,
+        )
+
+
 def divergence(y: FloatArray, reference: FloatArray, factor: float = 1e6) -> int | None:
     """First sample where a free run left ``factor`` × the reference's range, or None.
 
@@ -262,9 +282,10 @@ def aligned(model: Model, data: Dataset) -> Dataset:
     Raises
     ------
     DataError
-        A signal of the model is not in the data, or the data are sampled at another rate than
-        the model (more than :data:`DT_TOLERANCE` apart): a discrete-time model meeting data of
-        another sample time gives a wrong answer, never an error of its own.
+        A signal of the model is not in the data, the data are sampled at another rate than
+        the model (more than :data:`DT_TOLERANCE` apart), or a signal's unit in the data is not
+        the model's (:func:`check_units`): a model meeting data of another sample time or in
+        other units gives a wrong answer, never an error of its own.
     """
     missing = [n for n in (*model.input_names, *model.output_names) if n not in data.columns]
     if missing:
@@ -273,6 +294,7 @@ def aligned(model: Model, data: Dataset) -> Dataset:
             f"Columns: {', '.join(data.columns)}."
         )
     check_sample_time(model, data.dt)
+    check_units(model, data.units)
     if (tuple(model.input_names), tuple(model.output_names)) == (data.inputs, data.outputs):
         return data
     return data.select(model.input_names, model.output_names)
@@ -463,6 +485,7 @@ __all__ = [
     "apply_block",
     "arx_max_lag",
     "check_sample_time",
+    "check_units",
     "delay_taps",
     "divergence",
     "estimate_x0",

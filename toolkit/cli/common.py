@@ -19,6 +19,7 @@ from contextlib import contextmanager, suppress
 from pathlib import Path
 from typing import Any
 
+from ..dataset import split_header
 from ..errors import OptionError, SchemaError, TendonkitError
 from ..files import (
     atomic_write,
@@ -143,7 +144,7 @@ def csv_header(path: str | Path) -> list[str]:
         return []  # the loader reports why
     try:
         with Path(path).open(newline="", encoding="utf-8-sig") as fh:
-            return [h.strip() for h in next(csv.reader(fh), [])]
+            return [split_header(h)[0] for h in next(csv.reader(fh), [])]
     except (OSError, UnicodeDecodeError, csv.Error):
         return []
 

@@ -12,7 +12,7 @@ from ..errors import DataError, SimulationError
 from ..predict import predict
 from ..preprocess import lowpass, paper_cutoff_hz
 from ..robot.reconstruct import has_base_joints, joint_extras
-from ..simulate import check_sample_time, divergence, simulate
+from ..simulate import check_sample_time, check_units, divergence, simulate
 from .common import (
     atomic_write,
     check_output_dir,
@@ -37,6 +37,12 @@ def add_commands(sub: Any) -> None:
     p.add_argument("--option", action="append", metavar="KEY=VALUE", help="identifier option")
     p.add_argument("-o", "--output", required=True, help="model JSON file to write")
     p.add_argument("--time", default="t", help="time column in seconds (default: t)")
+    p.add_argument(
+        "--units",
+        metavar="NAME=UNIT,...",
+        help="units of inputs and outputs whose CSV header does not give them (a header cell "
+        "'q1 [rad]' does); they are stored in the model and checked against data it meets",
+    )
     p.add_argument("--json", help="also write a JSON summary here")
     p.add_argument(
         "--lowpass",
@@ -80,8 +86,9 @@ def cmd_identify(args: argparse.Namespace) -> int:
     inputs, outputs, _, factory = identifier_arguments(args, problems)
     check_output_path(args.output, args.data, problems)
     data = None
+    units = _units_argument(args.units, problems)
     try:
-        data = Dataset.from_csv(args.data, inputs, outputs, time=args.time)
+        data = Dataset.from_csv(args.data, inputs, outputs, time=args.time, units=units)
     except DataError as exc:
         problems.extend(exc.problems or [str(exc)])
     cutoff = _lowpass_cutoff(args.lowpass, data, problems) if args.lowpass else None
@@ -106,6 +113,22 @@ def cmd_identify(args: argparse.Namespace) -> int:
     fits = ", ".join(f"{k} {v:.2f} %" for k, v in model.provenance.training_fit.items())
     print(f"{args.method}: {model.kind} model written to {args.output} (training fit: {fits})")
     return 0
+
+
+def _units_argument(value: str | None, problems: list[str]) -> dict[str, str]:
+    """``--units q1=rad,T1=N``: a unit per signal name."""
+    units: dict[str, str] = {}
+    for item in (value or "").split(","):
+        if not item.strip() and value is None:
+            continue
+        name, eq, unit = item.partition("=")
+        if not eq or not name.strip() or not unit.strip():
+            problems.append(f"--units takes NAME=UNIT pairs separated by commas, found {item!r}.")
+            continue
+        if name.strip() in units:
+            problems.append(f"--units gives {name.strip()!r} twice.")
+        units[name.strip()] = unit.strip()
+    return units
 
 
 def _lowpass_cutoff(value: str, data: Any, problems: list[str]) -> float | None:
@@ -164,6 +187,10 @@ def cmd_simulate(args: argparse.Namespace) -> int:
             check_sample_time(model, data.dt, what=f"{args.data!r}")
         except DataError as exc:
             problems.append(str(exc))
+        try:
+            check_units(model, data.units, what=f"{args.data!r}")
+        except DataError as exc:
+            problems.append(str(exc).replace("\n", "\n   "))
     if data is not None and args.k is not None and args.k > data.n_samples:
         problems.append(
             f"--k must be at most the number of samples ({data.n_samples}), found {args.k}."
@@ -187,7 +214,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
             + "; the model is unstable on these inputs. Nothing was written."
         )
     cols = {args.time: exp.t, **{n: y[:, j] for j, n in enumerate(model.output_names)}}
-    atomic_write(args.output, lambda p: write_csv(p, cols))
+    units = {args.time: "s", **{s.name: s.unit for s in model.outputs}}
+    atomic_write(args.output, lambda p: write_csv(p, cols, units))
     what = f"{args.k}-step prediction" if args.k else f"free-run simulation (initial: {initial})"
     print(f"{what} of {len(exp.t)} samples written to {args.output}")
     return 0

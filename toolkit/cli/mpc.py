@@ -179,6 +179,19 @@ def cmd_mpc(args: argparse.Namespace) -> int:
             f"model {model.name!r} has sample time {model.dt:g} s; the controller runs at the "
             f"plant's {STEP:g} s step, so it needs a model identified at {STEP:g} s."
         )
+    if model is not None:
+        # the plant takes forces in N and measures joint angles in rad
+        plant_units = {s: "N" for s in model.input_names} | {s: "rad" for s in ("q1", "q2")}
+        clash = [
+            f"{s.name} [{s.unit}]"
+            for s in (*model.inputs, *model.outputs)
+            if s.unit and s.name in plant_units and s.unit != plant_units[s.name]
+        ]
+        if clash:
+            problems.append(
+                f"model {model.name!r} has {', '.join(clash)}; the plant takes tendon forces in "
+                "N and measures joint angles in rad: identify the model from data in those units."
+            )
     for name, value in (("--Q", args.Q), ("--R", args.R), ("--speed", args.speed)):
         if value is not None and not (np.isfinite(value) and value > 0):
             problems.append(f"{name} must be > 0, found {value}.")

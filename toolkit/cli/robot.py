@@ -13,7 +13,6 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from ..dataset import write_csv
 from ..errors import OptionError, SchemaError
 from ..robot.collect import collect, fmu_parameters
 from ..robot.figures import fig2
@@ -221,7 +220,7 @@ def cmd_collect(args: argparse.Namespace) -> int:
         seed=args.seed,
         progress=False if args.no_progress else None,
     )
-    atomic_write(args.output, lambda p: write_csv(p, rec.columns))
+    atomic_write(args.output, rec.to_csv)
     figures: list[str] = []
     if args.plot:
         with output_dirs(args.plot):

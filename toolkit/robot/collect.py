@@ -25,6 +25,7 @@ Examples
 from __future__ import annotations
 
 import ctypes
+import dataclasses
 import math
 import shutil
 import sys
@@ -71,6 +72,19 @@ COLUMNS = ("t", "u1", "u2", "u3", "u4", *OUTPUTS[9:13], *OUTPUTS[:9], *OUTPUTS[1
 _FORCES = slice(9, 13)
 
 
+def _unit(column: str) -> str:
+    base = column.removesuffix("_true")
+    if base == "t":
+        return "s"
+    if base[0] in "uT":
+        return "N"
+    return "m" if base.startswith("ee_") else "rad"
+
+
+#: Unit of every column (written into the CSV header as ``q1 [rad]``).
+UNITS = {c: _unit(c) for c in COLUMNS}
+
+
 @dataclass(frozen=True, eq=False)
 class Recording:
     """The logged frames of one collection run.
@@ -101,7 +115,7 @@ class Recording:
 
     def to_csv(self, path: str | Path) -> Path:
         """Write the columns as CSV (full float precision) and return the path."""
-        return write_csv(path, self.columns)
+        return write_csv(path, self.columns, UNITS)
 
     def to_dataset(
         self,
@@ -120,7 +134,7 @@ class Recording:
         if unknown:
             raise OptionError(f"Unknown columns {unknown}. Columns: {', '.join(cols)}.")
         extra = {k: v for k, v in cols.items() if k not in (*inputs, *outputs, "t")}
-        return Dataset.from_arrays(
+        ds = Dataset.from_arrays(
             np.column_stack([cols[n] for n in inputs]),
             np.column_stack([cols[n] for n in outputs]),
             dt=self.protocol.h,
@@ -129,6 +143,7 @@ class Recording:
             name=self.protocol.name,
             extra=extra,
         )
+        return dataclasses.replace(ds, units={n: UNITS[n] for n in (*inputs, *outputs)})
 
 
 class PlantSession:

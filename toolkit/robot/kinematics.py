@@ -146,22 +146,28 @@ def frames(q: np.ndarray, robot: RobotParameters | None = None) -> ChainFrames:
     axes = np.empty((n, N_JOINTS, 3))
     centres = np.empty((n, N_JOINTS + 1, 3))
     ell = robot.link_pitch
+    del ez
     for i in range(N_JOINTS):
         radius = robot.R[i]
         qi = qb[:, i]
         parent = rot[:, i]
-        half = parent @ _rotation(i, 0.5 * qi)
+        # A rotation about one local axis mixes two columns of the parent's orientation: column
+        # arithmetic on (n, 3) arrays instead of n tiny 3x3 matrix products (same numbers).
+        pan = i in PAN_JOINTS
+        a, b = (0, 2) if pan else (1, 2)  # the bending column and the z column
+        ch, sh = np.cos(0.5 * qi)[:, None], np.sin(0.5 * qi)[:, None]
+        c, s = np.cos(qi)[:, None], np.sin(qi)[:, None]
         # p_i(q) = R (2 sin(q/2) - sin q) e_bend + R (2 cos(q/2) - 1 - cos q) e_z
-        bend = radius * (2 * np.sin(0.5 * qi) - np.sin(qi))
-        lift = radius * (2 * np.cos(0.5 * qi) - 1 - np.cos(qi))
-        e_bend = 0 if i in PAN_JOINTS else 1
-        p_local = np.zeros((n, 3))
-        p_local[:, e_bend] = bend
-        p_local[:, 2] = lift
-        bottoms[:, i] = tops[:, i] + np.einsum("nab,nb->na", parent, p_local)
-        contacts[:, i] = tops[:, i] - radius * parent[:, :, 2] + radius * (half @ ez)
-        axes[:, i] = parent @ _local_axis(i)
-        rot[:, i + 1] = parent @ _rotation(i, qi)
+        bend = radius * (2 * sh - s)
+        lift = radius * (2 * ch - 1 - c)
+        bottoms[:, i] = tops[:, i] + parent[:, :, a] * bend + parent[:, :, b] * lift
+        half_z = sh * parent[:, :, a] + ch * parent[:, :, b]
+        contacts[:, i] = tops[:, i] - radius * parent[:, :, 2] + radius * half_z
+        axes[:, i] = parent[:, :, 1] if pan else -parent[:, :, 0]
+        child = rot[:, i + 1]
+        child[:] = parent
+        child[:, :, a] = c * parent[:, :, a] - s * parent[:, :, b]
+        child[:, :, b] = s * parent[:, :, a] + c * parent[:, :, b]
         link_z = rot[:, i + 1, :, 2]
         tops[:, i + 1] = bottoms[:, i] + ell * link_z
         centres[:, i] = bottoms[:, i] + 0.5 * ell * link_z

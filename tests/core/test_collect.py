@@ -103,10 +103,11 @@ def test_ratio_slopes_of_spec_14_from_a_collected_circle_csv(tmp_path, plant_fmu
     out = tmp_path / "circles.csv"
     args = ["collect", "--protocol", "circles", "--radii", "6,12", "--laps", "1"]
     assert main([*args, "--plant", str(plant_fmu), "-o", str(out), "--no-progress"]) == 0
-    data = np.genfromtxt(out, delimiter=",", names=True)
+    data = Dataset.from_csv(out, [], ["q1", "q2", "q3", "q4", "q5", "q6"], require_outputs=False)
+    assert data.units["q3"] == "rad"  # header cells "q3 [rad]"
 
     def slope(a: str, b: str) -> float:
-        x, y = data[a], data[b]
+        x, y = data.signal(a), data.signal(b)
         return float(x @ y / (x @ x))
 
     assert slope("q1", "q3") == pytest.approx(0.650, abs=0.003)
@@ -143,9 +144,10 @@ def test_collect_cli_writes_exact_columns_figures_and_summary(tmp_path, cache, c
     args = ["collect", "--protocol", "random", "--duration", "6", "--seed", "4", "-o", str(out)]
     assert main([*args, "--effect", "B", "--plot", str(figs), "--json", str(summary)]) == 0
     header = out.read_text().splitlines()[0].split(",")
-    expected = ["t", "u1", "u2", "u3", "u4", "T1", "T2", "T3", "T4"]
-    expected += [f"q{i}" for i in range(1, 7)] + ["ee_x", "ee_y", "ee_z"]
-    expected += [f"q{i}_true" for i in range(1, 7)] + ["ee_x_true", "ee_y_true", "ee_z_true"]
+    expected = ["t [s]", *(f"{c} [N]" for c in ("u1", "u2", "u3", "u4", "T1", "T2", "T3", "T4"))]
+    expected += [f"q{i} [rad]" for i in range(1, 7)] + ["ee_x [m]", "ee_y [m]", "ee_z [m]"]
+    expected += [f"q{i}_true [rad]" for i in range(1, 7)]
+    expected += ["ee_x_true [m]", "ee_y_true [m]", "ee_z_true [m]"]
     assert header == expected
     assert sorted(p.name for p in figs.iterdir()) == ["ee_path.png", "joint_angles.png"]
     assert all(p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" for p in figs.iterdir())

@@ -68,7 +68,7 @@ def test_identify_stores_the_units_and_simulate_writes_them(capsys, tmp_path, wi
     out = tmp_path / "sim.csv"
     code, _, err = run(capsys, "simulate", tmp_path / "m.json", data, "-o", out)
     assert code == 0, err
-    assert out.read_text().splitlines()[0] == "t [s],y1 [rad],y2 [rad]"
+    assert out.read_text().splitlines()[0] == "t,y1 [rad],y2 [rad]"
 
 
 def test_units_given_on_the_command_line(capsys, tmp_path, csv_file):

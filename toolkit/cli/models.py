@@ -214,7 +214,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
             + "; the model is unstable on these inputs. Nothing was written."
         )
     cols = {args.time: exp.t, **{n: y[:, j] for j, n in enumerate(model.output_names)}}
-    units = {args.time: "s", **{s.name: s.unit for s in model.outputs}}
+    units = {s.name: s.unit for s in model.outputs}  # the time column is named as in DATA
     atomic_write(args.output, lambda p: write_csv(p, cols, units))
     what = f"{args.k}-step prediction" if args.k else f"free-run simulation (initial: {initial})"
     print(f"{what} of {len(exp.t)} samples written to {args.output}")

@@ -116,7 +116,7 @@ def test_simulate_and_compare_refuse_data_in_other_units(capsys, tmp_path, with_
 
 def test_data_without_units_meet_any_model(capsys, tmp_path, with_units, csv_file):
     model = identify(capsys, tmp_path, with_units(UNITS))
-    code, out, err = run(capsys, "compare", csv_file(), model)
+    code, _, err = run(capsys, "compare", csv_file(), model)
     assert code == 0, err
 
 

@@ -93,6 +93,10 @@ def flatten(
 @njit(cache=True, nogil=True)
 def _fn(code: int, z: float, power: float, param: float) -> float:  # pragma: no cover - numba
     if code == 0:
+        if power == 1.0:
+            return z
+        if power == 2.0:
+            return z * z
         return z**power
     if code == 1:
         return np.sin(z)

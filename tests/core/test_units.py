@@ -129,7 +129,7 @@ def test_two_files_that_disagree_on_a_unit(with_units):
 
 def test_a_unit_with_a_separator_in_the_header_is_a_problem(tmp_path):
     path = tmp_path / "bad.csv"
-    path.write_text('t,u1 [N;m],y1\n0,1,2\n0.1,2,3\n0.2,3,5\n')
+    path.write_text("t,u1 [N;m],y1\n0,1,2\n0.1,2,3\n0.2,3,5\n")
     with pytest.raises(DataError, match="unit of column 'u1'"):
         Dataset.from_csv(path, ["u1"], ["y1"])
 

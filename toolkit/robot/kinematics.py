@@ -541,6 +541,8 @@ def inverse_kinematics(
         q = q12 @ e.T
         fr = frames(q, robot)
         resid = fr.ee[:, :2] - target
+        if not resid.size or np.max(np.abs(resid)) <= 1e-15:  # 1 fm: converged (4-5 steps)
+            break
         jac = _point_jacobian(fr, fr.ee, N_JOINTS)[:, :2, :] @ e
         q12 = q12 - np.linalg.solve(jac, resid[:, :, None])[:, :, 0]
     return q12[0] if single else q12

@@ -140,34 +140,25 @@ def _terms_at(  # pragma: no cover - numba
 
 @njit(cache=True, nogil=True)
 def arx_loop(  # pragma: no cover - numba
-    U,
-    Y,
-    forced,
-    Acat,
-    na,
-    start,
-    L,
-    coef_t,
-    ptr,
-    src,
-    col,
-    lag,
-    diff,
-    code,
-    power,
-    scale,
-    offset,
-    param,
-):
-    """``Y[k+L] = forced[k] - Acat·[Y[k+L-1]; …; Y[k+L-na]] + coef_t·θ(k)`` from ``start``.
+    U, Y, G, off, Acat, na, start, L, coef_t, ptr, src, col, lag, diff, code, power, scale,
+    offset, param,
+):  # fmt: skip
+    """``Y[k+L] = off + Σ_l G[l]·U[k+L-l] - Acat·[Y[k+L-1]; …; Y[k+L-na]] + coef_t·θ(k)``.
 
-    ``forced`` holds the input contribution and the offset; ``Y`` (padded with ``L`` samples
-    of history) is written in place; the first sample where an output turns non-finite and
-    every later one are NaN.
+    From sample ``start`` on; ``G`` holds the input matrices per lag (delays included), ``Y``
+    (padded with ``L`` samples of history) is written in place; the first sample where an
+    output turns non-finite and every later one are NaN.
     """
-    N = forced.shape[0]
-    ny = Y.shape[1]
+    N = U.shape[0] - L
+    ny, nu = Y.shape[1], U.shape[1]
     nt = ptr.shape[0] - 1
+    nl = G.shape[0]
+    used = np.zeros(nl, dtype=np.bool_)
+    for g in range(nl):
+        for i in range(ny):
+            for j in range(nu):
+                if G[g, i, j] != 0.0:
+                    used[g] = True
     theta = np.empty(nt)
     for k in range(start, N):
         kk = k + L
@@ -175,7 +166,11 @@ def arx_loop(  # pragma: no cover - numba
             _terms_at(U, Y, kk, ptr, src, col, lag, diff, code, power, scale, offset, param, theta)
         ok = True
         for i in range(ny):
-            acc = forced[k, i]
+            acc = off[i]
+            for g in range(nl):
+                if used[g]:
+                    for j in range(nu):
+                        acc += G[g, i, j] * U[kk - g, j]
             for w in range(na):
                 for j in range(ny):
                     acc -= Acat[i, w * ny + j] * Y[kk - 1 - w, j]
@@ -292,3 +287,22 @@ def run_terms(kernel, *args, flat: FlatTerms):  # type: ignore[no-untyped-def]
         flat.offset,
         flat.param,
     )
+
+
+@njit(cache=True, nogil=True)
+def state_loop(A, Bu, x0):  # pragma: no cover - numba
+    """States ``X[k]`` of ``x⁺ = A x + Bu[k]`` from ``x0`` (the inputs' part precomputed)."""
+    N, n = Bu.shape
+    X = np.empty((N, n))
+    x = x0.copy()
+    xn = np.empty(n)
+    for k in range(N):
+        for i in range(n):
+            X[k, i] = x[i]
+        for i in range(n):
+            acc = Bu[k, i]
+            for j in range(n):
+                acc += A[i, j] * x[j]
+            xn[i] = acc
+        x, xn = xn, x
+    return X

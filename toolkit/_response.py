@@ -13,6 +13,8 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from ._kernel import state_loop
+
 FloatArray = NDArray[np.float64]
 #: The initial state of a free run: zero, the model's ``x0``, estimated, or given.
 Initial = Literal["zero", "model", "estimate"] | FloatArray
@@ -93,14 +95,15 @@ def ss_response(
     forced = (T.reshape(L * ny, L * nu) @ Ub.reshape(nb, L * nu).T).T.reshape(nb, L, ny)
     ctrl = Gs.transpose(1, 0, 2).reshape(n, L * nu)
     xin = (ctrl @ Ub.reshape(nb, L * nu).T).T  # (nb, n): state added by each block's inputs
-    starts = np.empty((nb, n))
-    x = np.asarray(x0, dtype=float).copy()
-    for b in range(nb):
-        starts[b] = x
-        x = AL @ x + xin[b]
-    free = np.einsum("rpn,bn->brp", Ob, starts)
+    # the block-start states, x_{b+1} = A^L x_b + xin_b: a short recursion, compiled
+    starts = state_loop(np.ascontiguousarray(AL), np.ascontiguousarray(xin), _vector(x0))
+    free = (starts @ Ob.reshape(L * ny, n).T).reshape(nb, L, ny)
     Y = (free + forced).reshape(nb * L, ny)[:N]
     return Y + u @ D.T
+
+
+def _vector(x0: FloatArray) -> FloatArray:
+    return np.ascontiguousarray(np.asarray(x0, dtype=float).reshape(-1))
 
 
 def _ss_loop(

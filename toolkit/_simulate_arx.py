@@ -63,29 +63,12 @@ def _sim_arx(
     elif not isinstance(initial, str):
         raise DataError("ARX models take initial='zero', 'model' or 'estimate', not an array.")
     linear = not rep.terms or rep.term_coefficients is None
-    if linear and ny > 1 and N - start >= 512:
+    if linear and ny > 1 and N - start >= 512 and not compiled:
         Y[L + start :] = _arx_block(rep, U, Y, off, L, start, N)
         return Y[L:]
-    # Input contribution for every sample at once (the inputs are known).
-    forced = np.zeros((N, ny)) + off
-    for lag, Gl in enumerate(G):
-        if np.any(Gl):
-            forced += U[L - lag : L - lag + N] @ Gl.T
     na = rep.na
     coef = rep.term_coefficients
-    if linear and ny == 1 and start < N:
-        # Single output: the recursion is an IIR filter of the input contribution (C speed).
-        # lazy: heavy (scipy.signal)
-        from scipy.signal import lfilter, lfiltic
-
-        a = np.concatenate([[1.0], [float(Ai[0, 0]) for Ai in rep.A]])
-        zi = lfiltic([1.0], a, y=Y[L + start - 1 :: -1, 0][: max(na, 1)]) if na else None
-        if zi is None:
-            Y[L + start :, 0] = forced[start:, 0]
-        else:
-            Y[L + start :, 0] = lfilter([1.0], a, forced[start:, 0], zi=zi)[0]
-        return Y[L:]
-    if compiled:
+    if compiled and not (linear and ny == 1):
         # Every term is evaluated per step from flat arrays (no time-varying split needed).
         terms = () if linear else rep.terms
         flat = _kernel.flatten(
@@ -98,7 +81,8 @@ def _sim_arx(
             _kernel.arx_loop,
             U,
             Y,
-            forced,
+            np.ascontiguousarray(np.array(G, dtype=float).reshape(len(G), ny, nu)),
+            np.ascontiguousarray(off, dtype=float),
             np.ascontiguousarray(Acat, dtype=float),
             na,
             start,
@@ -106,6 +90,23 @@ def _sim_arx(
             coef_t,
             flat=flat,
         )
+        return Y[L:]
+    # Input contribution for every sample at once (the inputs are known).
+    forced = np.zeros((N, ny)) + off
+    for lag, Gl in enumerate(G):
+        if np.any(Gl):
+            forced += U[L - lag : L - lag + N] @ Gl.T
+    if linear and ny == 1 and start < N:
+        # Single output: the recursion is an IIR filter of the input contribution (C speed).
+        # lazy: heavy (scipy.signal)
+        from scipy.signal import lfilter, lfiltic
+
+        a = np.concatenate([[1.0], [float(Ai[0, 0]) for Ai in rep.A]])
+        zi = lfiltic([1.0], a, y=Y[L + start - 1 :: -1, 0][: max(na, 1)]) if na else None
+        if zi is None:
+            Y[L + start :, 0] = forced[start:, 0]
+        else:
+            Y[L + start :, 0] = lfilter([1.0], a, forced[start:, 0], zi=zi)[0]
         return Y[L:]
     ct = None if linear else CompiledTerms(rep.terms)
     if ct is None or coef is None:

@@ -137,13 +137,17 @@ def _check_u(model: Model, u: Any, y: Any) -> tuple[FloatArray, FloatArray | Non
     return u, y
 
 
+#: Default simulation engine of :func:`simulate`: ``"compiled"`` or ``"reference"``.
+ENGINE = "compiled"
+
+
 def simulate(
     model: Model,
     u: FloatArray,
     *,
     y: FloatArray | None = None,
     initial: Initial | None = None,
-    engine: str = "compiled",
+    engine: str | None = None,
 ) -> FloatArray:
     """Free-run simulation of ``model`` driven by inputs ``u`` (n, nu).
 
@@ -158,10 +162,11 @@ def simulate(
     initial : {"zero", "model", "estimate"} or array, optional
         Initial-state policy (module docstring).  Default: ``"estimate"`` when ``y`` is given,
         otherwise ``"model"``.
-    engine : {"compiled", "reference"}
-        ``"compiled"`` (default) runs the per-sample loops in the numba kernel
-        (:mod:`tendonkit._kernel`); ``"reference"`` runs the numpy implementation it is tested
-        against (equal to 1e-12).
+    engine : {"compiled", "reference"}, optional
+        ``"compiled"`` runs the per-sample loops in the numba kernel (:mod:`tendonkit._kernel`);
+        ``"reference"`` runs the numpy implementation it is tested against (equal to 1e-12).
+        Default: :data:`ENGINE` (``"compiled"``; benchmarks set it to time whole workflows
+        such as ``diagnose`` on either).
 
     Returns
     -------
@@ -186,6 +191,7 @@ def simulate(
         raise DataError(
             f"initial must be 'zero', 'model', 'estimate' or an array, found {initial!r}."
         )
+    engine = ENGINE if engine is None else engine
     if engine not in ("compiled", "reference"):
         raise DataError(f"engine must be 'compiled' or 'reference', found {engine!r}.")
     fast = engine == "compiled"
@@ -481,6 +487,7 @@ def _sim_sparse(
 
 __all__ = [
     "DT_TOLERANCE",
+    "ENGINE",
     "aligned",
     "apply_block",
     "arx_max_lag",

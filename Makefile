@@ -32,12 +32,14 @@ typecheck: $(STAMP)
 
 # Both cores (pytest-xdist), one BLAS thread per worker (two workers with two BLAS threads each
 # oversubscribe a 2-core machine); every test is safe in parallel (tmp_path, atomic caches).
+# --dist loadgroup: a module marked xdist_group runs on one worker, so its module-scoped
+# fixtures (the demo run, built FMUs) are built once instead of once per worker.
 ONE_THREAD := OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1
 pytest: $(STAMP)
-	$(ONE_THREAD) $(BIN)/python -m pytest -q -n auto --durations=15
+	$(ONE_THREAD) $(BIN)/python -m pytest -q -n auto --dist loadgroup --durations=15
 
 pytest-fast: $(STAMP)
-	$(ONE_THREAD) $(BIN)/python -m pytest -q -n auto -m "not slow and not real_data"
+	$(ONE_THREAD) $(BIN)/python -m pytest -q -n auto --dist loadgroup -m "not slow and not real_data"
 
 bench: $(STAMP)
 	$(BIN)/python -m pip install --quiet -r benchmarks/requirements.txt

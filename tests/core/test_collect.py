@@ -22,6 +22,9 @@ from tendonkit.fmu.plant import Plant, PlantConfig
 from tendonkit.robot.collect import COLUMNS, PlantSession, collect
 from tendonkit.robot.protocol import circles, pseudo_random
 
+# one worker runs this module: its module-scoped fixtures are built once (make test)
+pytestmark = pytest.mark.xdist_group("test_collect")
+
 pytest.importorskip("fmpy")
 
 TOL = 1e-12

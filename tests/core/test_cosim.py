@@ -40,6 +40,9 @@ from tendonkit.schema import ARX, Block, Signal
 from tendonkit.terms import Factor, Term
 from tendonkit.testsystems import random_state_space
 
+# one worker runs this module: its module-scoped fixtures are built once (make test)
+pytestmark = pytest.mark.xdist_group("test_cosim")
+
 pytest.importorskip("fmpy")
 
 

@@ -32,6 +32,9 @@ from tendonkit.schema import ARX, Block, Model, Signal, SparseMap, StateSpace
 from tendonkit.simulate import simulate
 from tendonkit.terms import Factor, Term
 
+# one worker runs this module: its module-scoped fixtures are built once (make test)
+pytestmark = pytest.mark.xdist_group("test_mpc")
+
 U0 = np.full(4, 105.0)
 
 

@@ -30,6 +30,9 @@ from tendonkit.schema import ARX, Block, Model, Signal, SparseMap, StateSpace
 from tendonkit.simulate import simulate
 from tendonkit.terms import Factor, Term
 
+# one worker runs this module: its module-scoped fixtures are built once (make test)
+pytestmark = pytest.mark.xdist_group("test_model_fmu")
+
 pytest.importorskip("fmpy")
 
 TOL = 1e-9

@@ -29,6 +29,9 @@ from tendonkit.robot import RobotParameters
 from tendonkit.robot.kinematics import rest_inertia
 from tendonkit.robot.protocol import circles, pseudo_random
 
+# one worker runs this module: its module-scoped fixtures are built once (make test)
+pytestmark = pytest.mark.xdist_group("test_plant")
+
 ROBOT = RobotParameters()
 H = 0.03
 # Circles the spec's signature numbers come from (2, 6, 12 cm) plus 1 cm for friction.

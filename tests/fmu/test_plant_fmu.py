@@ -23,6 +23,9 @@ from tendonkit.fmu.plant import Plant, PlantConfig
 from tendonkit.fmu.plant_fmu import INPUTS, OUTPUTS, STEP, read_parameters
 from tendonkit.robot.protocol import pseudo_random
 
+# one worker runs this module: its module-scoped fixtures are built once (make test)
+pytestmark = pytest.mark.xdist_group("test_plant_fmu")
+
 fmpy = pytest.importorskip("fmpy")
 
 TOL = 1e-12

@@ -28,7 +28,7 @@ from tendonkit.fmu.build import build_model_fmu
 from tendonkit.fmu.plant import Plant
 from tendonkit.robot.protocol import pseudo_random
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("test_importers")]
 
 TOL = 1e-9
 INPUTS = ["T1", "T2", "T3", "T4"]

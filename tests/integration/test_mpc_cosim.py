@@ -86,7 +86,7 @@ from tendonkit.robot.protocol import circles, pseudo_random
 
 pytest.importorskip("fmpy")
 pytest.importorskip("pysindy")
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("test_mpc_cosim")]
 
 SEED = 17
 #: Required reduction of the RMS true joint error against the open loop, per plant, controller

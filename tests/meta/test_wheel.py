@@ -17,6 +17,9 @@ from pathlib import Path
 import pytest
 import rooms
 
+# one worker runs this module: its module-scoped fixtures are built once (make test)
+pytestmark = pytest.mark.xdist_group("test_wheel")
+
 ROOT = Path(__file__).resolve().parents[2]
 
 

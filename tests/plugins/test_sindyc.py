@@ -21,6 +21,9 @@ from tendonkit.simulate import simulate, simulate_dataset
 from tendonkit.terms import CompiledTerms
 from tendonkit.testing import identifier_checks
 
+# one worker runs this module: its module-scoped fixtures are built once (make test)
+pytestmark = pytest.mark.xdist_group("test_sindyc")
+
 Step = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 

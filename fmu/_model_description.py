@@ -47,6 +47,9 @@ def finalize_model_description(
     outputs: Mapping[str, Sequence[str]],
     initial_unknowns: Mapping[str, Sequence[str] | None],
     naming: str = "structured",
+    state: bool = False,
+    model_name: str | None = None,
+    description: str | None = None,
 ) -> None:
     """Rewrite ``modelDescription.xml`` inside ``fmu`` (see module docs).
 
@@ -65,6 +68,10 @@ def finalize_model_description(
         Calculated output name -> the knowns its initial value depends on (``None``: all).
     naming : str
         ``variableNamingConvention``: ``"structured"`` or ``"flat"``.
+    state : bool
+        The slave implements ``fmi2Get/SetFMUstate`` and their serialisation.
+    model_name, description : str, optional
+        ``modelName`` and ``description`` of this FMU (pythonfmu writes the slave class's).
     """
     fmu = Path(fmu)
     with zipfile.ZipFile(fmu) as zf:
@@ -73,6 +80,10 @@ def finalize_model_description(
     root.set("variableNamingConvention", naming)
 
     root.set("version", __version__)
+    if model_name:
+        root.set("modelName", model_name)
+    if description:
+        root.set("description", description)
     cosim = root.find("CoSimulation")
     assert cosim is not None
     for flag, value in (
@@ -83,8 +94,8 @@ def finalize_model_description(
         ("canRunAsynchronuously", False),
         ("canBeInstantiatedOnlyOncePerProcess", False),
         ("canNotUseMemoryManagementFunctions", True),
-        ("canGetAndSetFMUstate", False),
-        ("canSerializeFMUstate", False),
+        ("canGetAndSetFMUstate", state),
+        ("canSerializeFMUstate", state),
         ("providesDirectionalDerivative", False),
     ):
         cosim.set(flag, str(value).lower())

@@ -24,10 +24,12 @@ import re
 import shutil
 import sys
 import tempfile
+import zipfile
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from tendonkit import __version__
 from tendonkit.errors import FMUError, OptionError, raise_if
 from tendonkit.fmu._config import PRESETS, PlantConfig, config_from_dict, config_to_dict
 from tendonkit.fmu._model_description import UNIT_BASES, finalize_model_description
@@ -282,6 +284,11 @@ def _cache_root() -> Path:
     return Path(base) / "tendonkit"
 
 
+def _module_file(name: str) -> str:
+    module = sys.modules.get(name)
+    return str(getattr(module, "__file__", "?"))
+
+
 def _build(
     script: Path,
     path: str | Path,
@@ -293,6 +300,9 @@ def _build(
     outputs: Mapping[str, Sequence[str]],
     initial_unknowns: Mapping[str, Sequence[str] | None],
     naming: str = "structured",
+    state: bool = False,
+    model_name: str | None = None,
+    description: str | None = None,
 ) -> Path:
     """Run pythonfmu on a private copy of ``script`` and finalise the model description."""
     # lazy: heavy (pythonfmu)
@@ -301,13 +311,16 @@ def _build(
     path = Path(path)
     if not path.parent.is_dir():
         raise FMUError(f"The folder of {str(path)!r} does not exist.")
-    module = script.stem
+    # The slave module is named after tendonkit's version: an importer loads a slave module
+    # once per process by name, so FMUs of two tendonkit versions in one process (a 0.1 and
+    # a 0.2 model FMU) would otherwise both run whichever was loaded first.
+    module = f"tendonkit_{script.stem}_{re.sub(r'[^0-9A-Za-z]', '_', __version__)}"
     saved_path = list(sys.path)
     had_module = module in sys.modules
     with tempfile.TemporaryDirectory(prefix="tendonkit_fmu_") as tmp:
         src = Path(tmp) / "src"
         src.mkdir()
-        shutil.copy2(script, src / script.name)
+        shutil.copy2(script, src / f"{module}.py")
         extra = []
         for name, content in resources.items():
             target = src / name
@@ -318,13 +331,21 @@ def _build(
             extra.append(target)
         built = Path(tmp) / "out.fmu"
         try:
-            FmuBuilder.build_FMU(src / script.name, dest=built, project_files=extra)
+            FmuBuilder.build_FMU(src / f"{module}.py", dest=built, project_files=extra)
         except Exception as exc:  # pythonfmu raises bare exceptions
             raise FMUError(f"pythonfmu could not build {script.name}: {exc}") from exc
         finally:
             sys.path[:] = saved_path  # pythonfmu leaves the script folder on sys.path
             if not had_module:
                 sys.modules.pop(module, None)
+        with zipfile.ZipFile(built) as zf:
+            binaries = [n for n in zf.namelist() if n.startswith("binaries/")]
+        if not binaries:
+            raise FMUError(
+                f"pythonfmu built {script.name} without binaries: the pythonfmu imported in this "
+                f"process ({_module_file('pythonfmu')}) is not an installed pythonfmu (an FMU "
+                "that bundles its own copy was loaded first?). Export in a fresh process."
+            )
         finalize_model_description(
             built,
             step_size=step_size,
@@ -333,6 +354,9 @@ def _build(
             outputs=outputs,
             initial_unknowns=initial_unknowns,
             naming=naming,
+            state=state,
+            model_name=model_name,
+            description=description,
         )
         fd, tmp_out = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
         os.close(fd)
@@ -434,6 +458,7 @@ def build_model_fmu(
         "kinematics": kinematics,
         "ratios": list(r),
         "robot": (robot or RobotParameters()).to_dict(),
+        "tendonkit_version": __version__,
     }
     resources = {slave.MODEL_FILE: model.to_json(), slave.CONFIG_FILE: json.dumps(config)}
     inputs, outputs, _ = slave.export_layout(model, kinematics)
@@ -457,6 +482,14 @@ def build_model_fmu(
         outputs={name: deps[name] for name in outputs},
         initial_unknowns={name: first[name] for name in outputs},
         naming=naming,
+        state=True,
+        model_name=model.name,
+        description=(
+            f"tendonkit {model.kind} model {model.name!r} ({len(model.inputs)} inputs, "
+            f"{len(model.outputs)} outputs, step {model.dt:g} s"
+            + (", with q3..q6 and the end effector reconstructed" if kinematics else "")
+            + f"), exported by tendonkit {__version__}"
+        ),
     )
 
 

@@ -39,6 +39,7 @@ import numpy as np
 from pythonfmu import Fmi2Causality, Fmi2Slave, Real
 from pythonfmu.enums import Fmi2Initial, Fmi2Status, Fmi2Variability
 
+from tendonkit import __version__
 from tendonkit.robot import PAPER_RATIOS, RobotParameters
 from tendonkit.robot.kinematics import expand_joints, forward_kinematics
 from tendonkit.schema import Model
@@ -89,12 +90,21 @@ class TendonModel(Fmi2Slave):
         self._ratios = [float(r) for r in config.get("ratios", PAPER_RATIOS[2:])]
         self._robot = RobotParameters.from_dict(config.get("robot", {}))
         self._stepper = Stepper(model)
+        exported = config.get("tendonkit_version")
+        if exported and exported != __version__:
+            self.log(
+                f"this FMU was exported by tendonkit {exported}; the host runs tendonkit "
+                f"{__version__}: results may differ from the exporter's",
+                Fmi2Status.warning,
+            )
         self._dt = float(model.dt)
         inputs, outputs, params = export_layout(model, self._kinematics)
         self._n_in, self._n_out = len(inputs), len(outputs)
         self._n_io = self._n_in + self._n_out
         self._in_vrs = list(range(self._n_in))
-        self._u = [0.0] * self._n_in
+        # inputs start at the training data's operating point (0 for models without one)
+        op = model.provenance.details.get("operating_point", {})
+        self._u = [float(op.get(name, 0.0)) if isinstance(op, dict) else 0.0 for name in inputs]
         self._y: list[float] | None = None  # outputs for the current state and inputs
         self._iq = (
             (model.output_names.index("q1"), model.output_names.index("q2"))
@@ -224,6 +234,21 @@ class TendonModel(Fmi2Slave):
             return False
         self._y = None
         return True
+
+    # ------------------------------------------------------------------ FMU state
+    def _get_fmu_state(self) -> dict[str, Any]:
+        """``fmi2GetFMUstate``: the model's evaluation state, the inputs and the ratios."""
+        return {"stepper": self._stepper.get_state(), "u": list(self._u), "ratios": self._ratios}
+
+    def _set_fmu_state(self, state: dict[str, Any]) -> None:
+        """``fmi2SetFMUstate``: back to a state of :meth:`_get_fmu_state` (logged if foreign)."""
+        try:
+            self._stepper.set_state(state["stepper"])
+            self._u = [float(v) for v in state["u"]]
+            self._ratios = [float(v) for v in state["ratios"]]
+        except Exception as exc:  # a state of another FMU: say so, never crash the importer
+            self.log(f"FMU state not restored: {exc}", Fmi2Status.error)
+        self._y = None
 
     # ------------------------------------------------------------------ helpers
     def _outputs(self) -> list[float]:

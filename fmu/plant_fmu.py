@@ -31,6 +31,7 @@ the builder, never executed), so one script serves every built configuration.
 
 from __future__ import annotations
 
+import inspect
 import json
 import math
 from collections.abc import Callable
@@ -43,6 +44,7 @@ from pythonfmu.default_experiment import DefaultExperiment
 from pythonfmu.enums import Fmi2Initial, Fmi2Status, Fmi2Variability
 
 from tendonkit.fmu.plant import Plant, PlantConfig, config_from_dict, config_to_dict
+from tendonkit.robot import RobotParameters
 
 #: Fixed communication step of the plant FMU, s.
 STEP = 0.03
@@ -185,6 +187,7 @@ class TendonPlant(Fmi2Slave):
                 )
             )
         kinds: dict[type, Any] = {bool: Boolean, int: Integer, str: String, float: Real}
+        about = parameter_descriptions()
         for name, default in default_parameters().items():
             self.register_variable(
                 kinds[type(default)](
@@ -192,6 +195,7 @@ class TendonPlant(Fmi2Slave):
                     causality=Fmi2Causality.parameter,
                     variability=Fmi2Variability.fixed,
                     initial=Fmi2Initial.exact,
+                    description=about.get(name, ""),
                     getter=self._param_getter(name),
                     setter=self._param_setter(name),
                 )
@@ -351,6 +355,25 @@ def _pack(out: dict[str, Any]) -> list[float]:
     """Output values in :data:`OUTPUTS` order from plant outputs (1-D, or one-row 2-D)."""
     values: list[float] = np.concatenate([out[key].ravel() for key in _OUTPUT_KEYS]).tolist()
     return values
+
+
+def parameter_descriptions() -> dict[str, str]:
+    """A description of every plant parameter, from the numpydoc ``Parameters`` sections of
+    :class:`PlantConfig` and :class:`RobotParameters` (one source for docs and FMU)."""
+    out: dict[str, str] = {}
+    for cls in (PlantConfig, RobotParameters):
+        doc = inspect.getdoc(cls) or ""
+        section = doc.split("Parameters\n----------\n", 1)[-1].split("\n\n", 1)[0]
+        names: list[str] = []
+        for line in section.splitlines():
+            if line and not line.startswith(" "):
+                names = [n.strip() for n in line.split(":")[0].split(",")]
+                continue
+            for n in names:
+                out[n] = f"{out.get(n, '')} {line.strip()}".strip()
+    for i in range(3, 7):
+        out[f"ratio_{i}"] = f"joint-angle ratio q{i}/q{1 + (i + 1) % 2} of the calibration"
+    return {k: " ".join(v.replace("``", "").split()) for k, v in out.items()}
 
 
 def _output_description(name: str) -> str:

@@ -497,7 +497,9 @@ def _read_csv(
                 f"after {t[k]:g} s."
             )
         else:
-            dt = float(np.median(d))
+            # Twelve significant digits: timestamps written as decimals of k·dt carry rounding
+            # noise (0.030000000000001137) that would leak into models and FMUs' step sizes.
+            dt = float(f"{np.median(d):.12g}")
             dev = np.abs(d - dt)
             if np.any(dev > dt_tol * dt):
                 k = int(np.argmax(dev))

@@ -106,7 +106,7 @@ def build_model(
             options=options_dict(options),
             dataset_hash=dataset.hash(),
             notes=notes,
-            details=dict(details or {}),
+            details={"operating_point": operating_point(dataset), **(details or {})},
         ),
     )
     if _SKIP_TRAINING_FIT.get():
@@ -114,6 +114,18 @@ def build_model(
     return model.replace(
         provenance=dataclasses.replace(model.provenance, training_fit=training_fit(model, dataset))
     )
+
+
+def operating_point(dataset: Dataset) -> dict[str, float]:
+    """Mean of every input over the training data: where the model was identified.
+
+    Exported FMUs start their inputs there (a master that does not set an input at once
+    meets the model at its operating point, not at zero).
+    """
+    if not dataset.experiments or not dataset.nu:
+        return {}
+    mean = np.mean(np.vstack([e.u for e in dataset.experiments]), axis=0)
+    return {name: float(f"{v:.6g}") for name, v in zip(dataset.inputs, mean, strict=True)}
 
 
 def training_fit(model: Model, dataset: Dataset) -> dict[str, float]:

@@ -32,7 +32,8 @@ Examples
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -200,6 +201,71 @@ class Stepper:
         else:
             self._sources.update((n, (self._u_hist, j)) for j, n in enumerate(model.input_names))
             self._sources.update((n, (self._y_hist, j)) for j, n in enumerate(model.output_names))
+
+    def get_state(self) -> dict[str, Any]:
+        """The whole evaluation state as plain data (JSON-serialisable; NaN as ``None``).
+
+        :meth:`set_state` with it returns this stepper, or another one of the same model, to
+        exactly this sample: what an FMU's ``fmi2GetFMUstate`` and serialisation need.
+        """
+
+        def arr(a: Any) -> list[Any]:
+            return [None if not np.isfinite(v) else float(v) for v in np.ravel(a)]
+
+        blocks = [
+            {"started": b.started, "fifo": list(b.fifo), "v": b.v, "s0": b.s0}
+            for chain in (self._in_blocks, self._out_blocks)
+            for _, b in chain.items
+        ]
+        return {
+            "time_index": self.time_index,
+            "dead": self._dead,
+            "x": arr(self._x) if hasattr(self, "_x") else [],
+            "u_hist": [arr(a) for a in self._u_hist],
+            "y_hist": [arr(a) for a in self._y_hist],
+            "x_hist": [arr(a) for a in self._x_hist],
+            "blocks": blocks,
+        }
+
+    def set_state(self, state: Mapping[str, Any]) -> None:
+        """Return to a state taken by :meth:`get_state` (of a stepper of the same model).
+
+        Raises
+        ------
+        DataError
+            The state does not belong to this model (other sizes or block count).
+        """
+
+        def arr(values: Sequence[Any], n: int, what: str) -> FloatArray:
+            out = np.array([np.nan if v is None else float(v) for v in values], dtype=float)
+            if out.shape != (n,):
+                raise DataError(f"A saved state of another model: {what} has {out.size} values.")
+            return out
+
+        try:
+            blocks = list(state["blocks"])
+            chains = [b for chain in (self._in_blocks, self._out_blocks) for _, b in chain.items]
+            if len(blocks) != len(chains):
+                raise DataError("A saved state of another model: the blocks differ.")
+            nx = len(self._x) if hasattr(self, "_x") else 0
+            x = arr(state["x"], nx, "x")
+            hists = [
+                [arr(a, n, name) for a in state[name]]
+                for name, n in (("u_hist", self.nu), ("y_hist", self.ny), ("x_hist", nx))
+            ]
+            self.time_index = int(state["time_index"])
+            self._dead = bool(state["dead"])
+        except (KeyError, TypeError, ValueError) as exc:
+            raise DataError(f"Not a saved stepper state: {exc}.") from exc
+        if nx:
+            self._x = x
+        for target, values in zip((self._u_hist, self._y_hist, self._x_hist), hists, strict=True):
+            target.clear()  # the same deques: the term sources keep pointing at them
+            target.extend(values)
+        for b, saved in zip(chains, blocks, strict=True):
+            b.started = bool(saved["started"])
+            b.fifo = deque(float(v) for v in saved["fifo"])
+            b.v, b.s0 = float(saved["v"]), float(saved["s0"])
 
     # ------------------------------------------------------------------ public
     def outputs(self, u: Sequence[float] | FloatArray) -> FloatArray:

@@ -269,3 +269,26 @@ def test_a_negative_delay_is_refused():
 
     with pytest.raises(SchemaError, match="delay samples must be >= 0"):
         model("arx_linear", False).replace(input_blocks=(Block("delay", "T1", {"samples": -0.5}),))
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_a_saved_state_resumes_exactly_also_in_another_stepper(kind):
+    """``get_state``/``set_state`` (an FMU's fmi2Get/SetFMUstate), through JSON."""
+    import json
+
+    u = np.random.default_rng(2).normal(size=(120, 2))
+    m = model(kind, True)
+    s = Stepper(m)
+    for row in u[:50]:
+        s.step(row)
+    saved = json.loads(json.dumps(s.get_state()))
+    first = np.array([s.step(row) for row in u[50:]])
+    other = Stepper(m)
+    other.set_state(saved)
+    np.testing.assert_array_equal(np.array([other.step(row) for row in u[50:]]), first)
+    s.set_state(saved)
+    np.testing.assert_array_equal(np.array([s.step(row) for row in u[50:]]), first)
+    with pytest.raises(DataError, match=r"another model|Not a saved"):
+        Stepper(model("arx_linear" if kind != "arx_linear" else "sparse_map", False)).set_state(
+            saved
+        )

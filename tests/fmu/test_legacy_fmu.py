@@ -128,3 +128,55 @@ def test_a_0_1_model_fmu_in_a_fresh_interpreter(tmp_path, python_warnings):
     )
     assert r.returncode == 0, r.stderr
     np.testing.assert_allclose(np.load(tmp_path / "y.npy"), _expected(u), rtol=1e-9, atol=1e-12)
+
+
+def test_a_0_1_fmu_and_a_current_fmu_in_one_process_each_run_their_own_slave(tmp_path):
+    """Importers load a slave module once per process by name: the names carry the version.
+
+    Before, both archives held ``model_fmu.py``: after the 0.1 FMU ran, a current FMU in the
+    same process ran the 0.1 slave (no FMU state, other variable names).
+    """
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Slave
+
+    from tendonkit.fmu.build import build_model_fmu
+
+    u = _inputs(60)
+    with zipfile.ZipFile(LEGACY) as z:
+        model = Model.from_json(z.read("resources/model.json").decode())
+    current = build_model_fmu(model, tmp_path / "current.fmu", kinematics=False)
+    _run(LEGACY, u)  # the 0.1 slave module is now loaded in this process
+    with zipfile.ZipFile(current) as z:
+        names = z.namelist()
+    assert any(n.startswith("resources/tendonkit_model_fmu_") for n in names), names
+    md = read_model_description(str(current))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    fmu = FMU2Slave(
+        guid=md.guid,
+        unzipDirectory=extract(str(current)),
+        modelIdentifier=md.coSimulation.modelIdentifier,
+        instanceName="current",
+    )
+    fmu.instantiate()
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    fmu.exitInitializationMode()
+    dt = float(md.defaultExperiment.stepSize)
+    vin = [vr[n] for n in model.input_names]
+    vout = [vr[n] for n in model.output_names]
+    rows = []
+    try:
+        for k, row in enumerate(u):
+            if k == 30:
+                saved = fmu.getFMUstate()  # the current slave has state; 0.1's had none
+            fmu.setReal(vin, list(row))
+            rows.append(fmu.getReal(vout))
+            fmu.doStep(k * dt, dt)
+        fmu.setFMUstate(saved)
+        fmu.setReal(vin, list(u[30]))
+        again = fmu.getReal(vout)
+    finally:
+        fmu.terminate()
+        fmu.freeInstance()
+    np.testing.assert_allclose(rows, simulate(model, u, initial="model"), rtol=1e-9, atol=1e-12)
+    assert again == rows[30]

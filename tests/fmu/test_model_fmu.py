@@ -300,3 +300,133 @@ def test_export_cli_with_ratios_file_and_clear_errors(tmp_path, identified, caps
         assert text in err
     assert main(["export", str(tmp_path / "missing.json"), "-o", str(out)]) == 2
     assert "does not exist" in capsys.readouterr().err
+
+
+# -- issue 16, point 3: state, names, step size --------------------------------------------------
+
+
+def _slave(path: Path):
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Slave
+
+    md = read_model_description(str(path))
+    fmu = FMU2Slave(
+        guid=md.guid,
+        unzipDirectory=extract(str(path)),
+        modelIdentifier=md.coSimulation.modelIdentifier,
+        instanceName="model",
+    )
+    fmu.instantiate()
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    fmu.exitInitializationMode()
+    return md, fmu
+
+
+@pytest.mark.parametrize("method", ["n4sid", "arx_bilinear", "sindyc"])
+def test_fmu_state_get_set_and_serialise(tmp_path, identified, validation, method):
+    """Importers that iterate (step, look, go back) get exactly the same run again."""
+    path = build_model_fmu(identified[method], tmp_path / f"{method}.fmu")
+    md, fmu = _slave(path)
+    assert md.coSimulation.canGetAndSetFMUstate and md.coSimulation.canSerializeFMUstate
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    vin, vout = [vr[n] for n in INPUTS], [vr[n] for n in JOINT_OUTPUTS]
+    dt = float(md.defaultExperiment.stepSize)
+
+    def steps(start: int, stop: int) -> np.ndarray:
+        rows = []
+        for k in range(start, stop):
+            fmu.setReal(vin, list(validation[k]))
+            rows.append(fmu.getReal(vout))
+            fmu.doStep(k * dt, dt)
+        return np.array(rows)
+
+    try:
+        steps(0, 40)
+        saved = fmu.getFMUstate()
+        blob = fmu.serializeFMUstate(saved)
+        first = steps(40, 80)
+        fmu.setFMUstate(saved)
+        again = steps(40, 80)
+        np.testing.assert_array_equal(again, first)
+        fmu.setFMUstate(fmu.deSerializeFMUstate(blob))
+        np.testing.assert_array_equal(steps(40, 80), first)
+        fmu.freeFMUstate(saved)
+    finally:
+        fmu.terminate()
+        fmu.freeInstance()
+    expected = reference(identified[method], validation[:80])
+    np.testing.assert_allclose(first, expected[40:80], atol=TOL)
+
+
+def test_each_fmu_says_which_model_it_is(tmp_path, identified):
+    from fmpy import read_model_description
+
+    model = identified["arx"]
+    path = build_model_fmu(model, tmp_path / "m.fmu")
+    md = read_model_description(str(path))
+    assert md.modelName == model.name
+    assert "arx" in md.description and "exported by tendonkit" in md.description
+    assert tk.__version__ in md.description
+
+
+def test_csv_timestamp_noise_does_not_reach_the_step_size(tmp_path, capsys):
+    """Timestamps k·0.03 written as decimals differ from 0.03 by ~1e-15: the step is 0.03."""
+    n = 600
+    rng = np.random.default_rng(3)
+    t = 1000.0 + np.arange(n) * 0.03  # a rig clock: large times, coarse rounding
+    u = rng.normal(100, 5, (n, 2))
+    y = np.cumsum(u - 100, axis=0)[:, :1] * 1e-3
+    rows = zip(t.tolist(), u[:, 0].tolist(), u[:, 1].tolist(), y[:, 0].tolist(), strict=True)
+    text = "t,T1,T2,q1\n" + "".join(f"{a!r},{b!r},{c!r},{d!r}\n" for a, b, c, d in rows)
+    assert float(np.median(np.diff(t))) != 0.03  # the decimals carry the noise
+    data = tmp_path / "d.csv"
+    data.write_text(text)
+    assert tk.Dataset.from_csv(data, ["T1", "T2"], ["q1"]).dt == 0.03
+    model = tmp_path / "m.json"
+    assert main([
+        "identify", str(data), "--inputs", "T1,T2", "--outputs", "q1", "-o", str(model)
+    ]) == 0  # fmt: skip
+    assert main(["export", str(model), "-o", str(tmp_path / "m.fmu"), "--no-kinematics"]) == 0
+    with zipfile.ZipFile(tmp_path / "m.fmu") as zf:
+        root = ET.fromstring(zf.read("modelDescription.xml"))
+    assert root.find("DefaultExperiment").get("stepSize") == "0.03"
+
+
+def test_inputs_start_at_the_operating_point(tmp_path, identified):
+    """A master that never sets the inputs meets the model where it was identified, not at 0 N."""
+    model = identified["arx"]
+    op = model.provenance.details["operating_point"]
+    assert list(op) == INPUTS and all(60.0 < v < 150.0 for v in op.values()), op
+    path = build_model_fmu(model, tmp_path / "m.fmu")
+    md, fmu = _slave(path)
+    starts = {v.name: float(v.start) for v in md.modelVariables if v.causality == "input"}
+    assert starts == pytest.approx(op)
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    dt = float(md.defaultExperiment.stepSize)
+    try:
+        rows = []
+        for k in range(200):  # inputs never set
+            rows.append(fmu.getReal([vr["q1"], vr["q2"]]))
+            fmu.doStep(k * dt, dt)
+    finally:
+        fmu.terminate()
+        fmu.freeInstance()
+    held = simulate(model, np.tile([op[n] for n in INPUTS], (200, 1)), initial="model")
+    np.testing.assert_allclose(rows, held, atol=TOL)
+    zero = simulate(model, np.zeros((200, 4)), initial="model")
+    assert np.abs(zero[-1] - held[-1]).max() > 1e-3  # 0 N is somewhere else entirely
+
+
+def test_an_identified_model_is_named_after_its_file(tmp_path, small_data):
+    from tendonkit.dataset import write_csv
+
+    e = small_data[1].experiments[0]
+    data = write_csv(
+        tmp_path / "d.csv", {"t": e.t, "u1": e.u[:, 0], "u2": e.u[:, 1], "y1": e.y[:, 0]}
+    )
+    out = tmp_path / "robot_arx_v2.json"
+    assert main([
+        "identify", str(data), "--inputs", "u1,u2", "--outputs", "y1", "-o", str(out)
+    ]) == 0  # fmt: skip
+    assert Model.load(out).name == "robot_arx_v2"

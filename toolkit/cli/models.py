@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+from pathlib import Path
 from typing import Any
 
 from ..compare import compare, render_compare
@@ -97,6 +98,8 @@ def cmd_identify(args: argparse.Namespace) -> int:
     if cutoff is not None:
         data = lowpass(data, cutoff)
     model = factory.identify(data)
+    # the model is named after its file (FMUs exported from it carry the name)
+    model = model.replace(name=Path(args.output).stem or model.name)
     if cutoff is not None:
         model = noted(model, f"outputs low-pass filtered at {cutoff:.6g} Hz (zero-phase)")
     atomic_write(args.output, model.save)

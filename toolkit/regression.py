@@ -29,7 +29,7 @@ def scaled_lstsq(Phi: FloatArray, Y: FloatArray, ridge: float = 0.0) -> FloatArr
     exactly collinear regressors.
     """
     # lazy: heavy (scipy)
-    from scipy.linalg import lstsq, qr
+    from scipy.linalg import lstsq
 
     scale = np.linalg.norm(Phi, axis=0)
     scale[scale == 0] = 1.0
@@ -39,11 +39,34 @@ def scaled_lstsq(Phi: FloatArray, Y: FloatArray, ridge: float = 0.0) -> FloatArr
         P = np.vstack([P, np.sqrt(ridge) * np.eye(k)])
         Y = np.vstack([Y, np.zeros((k, Y.shape[1]))])
     if P.shape[0] > 4 * (k + Y.shape[1]):
-        R = qr(np.hstack([P, Y]), mode="r", check_finite=False)[0]
+        R = _r_factor(np.hstack([P, Y]))
         m = min(R.shape[0], k)
         P, Y = R[:m, :k], R[:m, k:]
     theta, *_ = lstsq(P, Y, check_finite=False, cond=1e-13)
     return np.asarray(theta / scale[:, None])
+
+
+#: Rows per block of the tall QR (a block of ~50 columns stays in cache).
+QR_BLOCK = 4096
+
+
+def _r_factor(A: FloatArray) -> FloatArray:
+    """The triangular factor of ``A``'s QR, by blocks of rows (TSQR) when ``A`` is tall.
+
+    Householder QR of a tall matrix streams the whole matrix through memory once per column;
+    factoring blocks of :data:`QR_BLOCK` rows that fit in cache and then the stacked block
+    factors gives the same ``R`` (up to the signs of its rows, which least squares ignore) with
+    the same orthogonal-transformation accuracy, several times faster on 10⁵ rows.
+    """
+    # lazy: heavy (scipy)
+    from scipy.linalg import qr
+
+    n, c = A.shape
+    block = max(QR_BLOCK, 4 * c)
+    if n <= 2 * block:
+        return np.asarray(qr(A, mode="r", check_finite=False)[0])
+    parts = [qr(A[i : i + block], mode="r", check_finite=False)[0][:c] for i in range(0, n, block)]
+    return np.asarray(qr(np.vstack(parts), mode="r", check_finite=False)[0])
 
 
 def term_columns_of(terms: Sequence[Term], signals: dict[str, FloatArray], n: int) -> FloatArray:

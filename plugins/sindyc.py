@@ -63,6 +63,7 @@ from tendonkit.errors import DataError, OptionError, PluginError
 from tendonkit.hookspecs import hookimpl
 from tendonkit.identification import build_model, require_samples, signals
 from tendonkit.metrics import fit
+from tendonkit.regression import r_factor
 from tendonkit.schema import Model, SparseMap
 from tendonkit.terms import CompiledTerms, Factor, Term
 
@@ -241,8 +242,9 @@ class SINDYc:
         head = data.with_experiments(_head(e, VERIFY_ROWS) for e in data.experiments)
         verify_terms(terms, library_matrix(head, norm, self.degree, self.sin), head)
         target = np.vstack([norm.states(e.y)[1:] for e in data.experiments])
-        q, r = np.linalg.qr(theta)
-        qy = q.T @ target
+        k = theta.shape[1]
+        rq = r_factor(np.hstack([theta, target]))  # [R, QᵀY]: Q itself is never formed
+        r, qy = rq[:k, :k], rq[:k, k:]
         guess, *_ = np.linalg.lstsq(r, qy, rcond=None)  # pysindy's initial guess, same system
         opt = self._optimizer(lam, initial_guess=guess.T.copy())
         with warnings.catch_warnings():
@@ -279,8 +281,9 @@ class SINDYc:
         """
         theta = library_matrix(train, norm, self.degree, self.sin)
         target = np.vstack([norm.states(e.y)[1:] for e in train.experiments])
-        q, r = np.linalg.qr(theta)
-        qy = q.T @ target
+        k = theta.shape[1]
+        rq = r_factor(np.hstack([theta, target]))  # [R, QᵀY]: Q itself is never formed
+        r, qy = rq[:k, :k], rq[:k, k:]
         guess, *_ = np.linalg.lstsq(r, qy, rcond=None)  # pysindy's initial guess, same system
         scores: dict[float, float] = {}
 

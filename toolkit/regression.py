@@ -15,7 +15,7 @@ from numpy.typing import NDArray
 from .dataset import Dataset, Experiment
 from .terms import CompiledTerms, Term, series_getter
 
-__all__ = ["scaled_lstsq", "term_columns", "term_columns_of"]
+__all__ = ["r_factor", "scaled_lstsq", "term_columns", "term_columns_of"]
 
 FloatArray = NDArray[np.float64]
 
@@ -39,7 +39,7 @@ def scaled_lstsq(Phi: FloatArray, Y: FloatArray, ridge: float = 0.0) -> FloatArr
         P = np.vstack([P, np.sqrt(ridge) * np.eye(k)])
         Y = np.vstack([Y, np.zeros((k, Y.shape[1]))])
     if P.shape[0] > 4 * (k + Y.shape[1]):
-        R = _r_factor(np.hstack([P, Y]))
+        R = r_factor(np.hstack([P, Y]))
         m = min(R.shape[0], k)
         P, Y = R[:m, :k], R[:m, k:]
     theta, *_ = lstsq(P, Y, check_finite=False, cond=1e-13)
@@ -50,7 +50,7 @@ def scaled_lstsq(Phi: FloatArray, Y: FloatArray, ridge: float = 0.0) -> FloatArr
 QR_BLOCK = 4096
 
 
-def _r_factor(A: FloatArray) -> FloatArray:
+def r_factor(A: FloatArray) -> FloatArray:
     """The triangular factor of ``A``'s QR, by blocks of rows (TSQR) when ``A`` is tall.
 
     Householder QR of a tall matrix streams the whole matrix through memory once per column;

@@ -66,7 +66,8 @@ def fmus(tmp_path_factory):
         "n4sid": tk.identify(train, "n4sid", order=6),
         "sindyc": tk.identify(train, "sindyc"),
     }
-    return {name: build_model_fmu(m, folder / f"{name}.fmu") for name, m in models.items()}
+    paths = {name: build_model_fmu(m, folder / f"{name}.fmu") for name, m in models.items()}
+    return {**paths, "models": models}
 
 
 @pytest.fixture(scope="module")
@@ -75,7 +76,7 @@ def commands():
     return rec["T_meas"]
 
 
-def run_fmpy(path: Path, u: np.ndarray) -> np.ndarray:
+def run_fmpy(path: Path, u: np.ndarray, inputs=INPUTS, outputs=OUTPUTS) -> np.ndarray:
     from fmpy import extract, read_model_description
     from fmpy.fmi2 import FMU2Slave
 
@@ -93,15 +94,15 @@ def run_fmpy(path: Path, u: np.ndarray) -> np.ndarray:
     fmu.exitInitializationMode()
     rows = []
     for k, row in enumerate(u):
-        fmu.setReal([vr[n] for n in INPUTS], list(row))
+        fmu.setReal([vr[n] for n in inputs], list(row))
         fmu.doStep(k * 0.03, 0.03)
-        rows.append(fmu.getReal([vr[n] for n in OUTPUTS]))
+        rows.append(fmu.getReal([vr[n] for n in outputs]))
     fmu.terminate()
     fmu.freeInstance()
     return np.array(rows)
 
 
-def run_libcosim(path: Path, u: np.ndarray) -> np.ndarray:
+def run_libcosim(path: Path, u: np.ndarray, inputs=INPUTS, outputs=OUTPUTS) -> np.ndarray:
     _require("libcosimpy", "libcosimpy")
     from libcosimpy.CosimExecution import CosimExecution
     from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
@@ -120,13 +121,13 @@ def run_libcosim(path: Path, u: np.ndarray) -> np.ndarray:
     execution.add_manipulator(override)
     rows = []
     for row in u:
-        override.slave_real_values(index, [refs[n] for n in INPUTS], [float(x) for x in row])
+        override.slave_real_values(index, [refs[n] for n in inputs], [float(x) for x in row])
         assert execution.step(1), f"libcosim step failed: {execution.status()}"
-        rows.append(observer.last_real_values(index, [refs[n] for n in OUTPUTS]))
+        rows.append(observer.last_real_values(index, [refs[n] for n in outputs]))
     return np.array(rows)
 
 
-def run_ecos(path: Path, u: np.ndarray) -> np.ndarray:
+def run_ecos(path: Path, u: np.ndarray, inputs=INPUTS, outputs=OUTPUTS) -> np.ndarray:
     _load_tbb()
     _require("ecospy", "ecospy")
     from ecospy.EcosSimulation import EcosSimulation
@@ -139,10 +140,10 @@ def run_ecos(path: Path, u: np.ndarray) -> np.ndarray:
     rows = []
     try:
         for row in u:
-            for name, value in zip(INPUTS, row):
+            for name, value in zip(inputs, row, strict=True):
                 sim.set_real(f"m::{name}", float(value))
             sim.step(1)
-            rows.append([sim.get_real(f"m::{name}") for name in OUTPUTS])
+            rows.append([sim.get_real(f"m::{name}") for name in outputs])
     finally:
         sim.terminate()
     return np.array(rows)
@@ -156,4 +157,43 @@ def test_importer_outputs_equal_fmpy(fmus, commands, which, importer):
     got = (run_libcosim if importer == "libcosim" else run_ecos)(path, commands)
     assert got.shape == reference.shape == (len(commands), len(OUTPUTS))
     assert np.ptp(reference[:, 0]) > 0.01  # the joints move
+    np.testing.assert_allclose(got, reference, rtol=0, atol=TOL)
+
+
+@pytest.mark.parametrize("which", ["n4sid", "sindyc"])
+@pytest.mark.parametrize("importer", ["fmpy", "libcosim", "ecos"])
+def test_importer_outputs_equal_tendonkit_simulate(fmus, commands, which, importer):
+    """An independent reference: ``simulate`` and the reconstruction, not the slave's own code.
+
+    Importers set ``u(t_k)``, step, then read: without direct feedthrough (these two models)
+    the outputs read after the k-th step are the model's sample k + 1.
+    """
+    from tendonkit.robot.kinematics import expand_joints, forward_kinematics
+    from tendonkit.simulate import simulate
+    from tendonkit.stepper import feedthrough
+
+    model = fmus["models"][which]
+    assert not any(feedthrough(model).values())
+    y = simulate(model, commands, initial="model")
+    q = expand_joints(y, tk.robot.PAPER_RATIOS)
+    expected = np.hstack([y, q[:, 2:], forward_kinematics(q)])[1:]
+    run = {"fmpy": run_fmpy, "libcosim": run_libcosim, "ecos": run_ecos}[importer]
+    got = run(fmus[which], commands)[:-1]
+    np.testing.assert_allclose(got, expected, rtol=0, atol=TOL)
+
+
+@pytest.mark.parametrize("importer", ["libcosim", "ecos"])
+def test_the_plant_fmu_runs_in_the_importers(tmp_path, commands, importer):
+    """The plant FMU (effects on) in libcosim and Ecos gives fmpy's outputs."""
+    from tendonkit.fmu.build import build_plant_fmu
+    from tendonkit.fmu.plant import PlantConfig
+    from tendonkit.fmu.plant_fmu import INPUTS as PLANT_IN
+    from tendonkit.fmu.plant_fmu import OUTPUTS as PLANT_OUT
+
+    cfg = PlantConfig(friction_on=True, backlash_on=True, noise_on=True, seed=4)
+    path = build_plant_fmu(tmp_path / "plant.fmu", cfg)
+    reference = run_fmpy(path, commands, PLANT_IN, PLANT_OUT)
+    run = run_libcosim if importer == "libcosim" else run_ecos
+    got = run(path, commands, PLANT_IN, PLANT_OUT)
+    assert np.ptp(reference[:, 0]) > 0.01
     np.testing.assert_allclose(got, reference, rtol=0, atol=TOL)

@@ -153,12 +153,12 @@ def arx_loop(  # pragma: no cover - numba
     ny, nu = Y.shape[1], U.shape[1]
     nt = ptr.shape[0] - 1
     nl = G.shape[0]
-    used = np.zeros(nl, dtype=np.bool_)
+    n_used = 0
+    lags = np.empty(nl, dtype=np.int64)
     for g in range(nl):
-        for i in range(ny):
-            for j in range(nu):
-                if G[g, i, j] != 0.0:
-                    used[g] = True
+        if np.any(G[g] != 0.0):
+            lags[n_used] = g
+            n_used += 1
     theta = np.empty(nt)
     for k in range(start, N):
         kk = k + L
@@ -167,10 +167,11 @@ def arx_loop(  # pragma: no cover - numba
         ok = True
         for i in range(ny):
             acc = off[i]
-            for g in range(nl):
-                if used[g]:
-                    for j in range(nu):
-                        acc += G[g, i, j] * U[kk - g, j]
+            for m in range(n_used):
+                g = lags[m]
+                row = kk - g
+                for j in range(nu):
+                    acc += G[g, i, j] * U[row, j]
             for w in range(na):
                 for j in range(ny):
                     acc -= Acat[i, w * ny + j] * Y[kk - 1 - w, j]

@@ -5,11 +5,12 @@ model FMU (``tendonkit export``; :func:`tendonkit.fmu.build.build_model_fmu`).  
 travels as the resource ``model.json`` (the schema's JSON, loaded with
 :meth:`tendonkit.schema.Model.from_json`, which never evaluates code) and is evaluated by
 :class:`tendonkit.stepper.Stepper`, so every representation and block kind of the schema works
-without any change here.  The hosting Python needs tendonkit installed.
+without any change here.  The hosting Python needs tendonkit installed; without it the slave
+still instantiates, logs why at error level and refuses every step (:data:`MISSING`).
 
 Variables:
 
-* inputs: the model's inputs (start 0);
+* inputs: the model's inputs (start: the operating point of the training data);
 * outputs: the model's outputs and, with kinematics, the reconstructed joints
   ``q3 = ratio_3 q1``, ``q4 = ratio_4 q2``, ``q5 = ratio_5 q1``, ``q6 = ratio_6 q2`` and the
   end effector ``ee_x, ee_y, ee_z`` (forward kinematics of the nominal robot);
@@ -35,15 +36,23 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 from pythonfmu import Fmi2Causality, Fmi2Slave, Real
 from pythonfmu.enums import Fmi2Initial, Fmi2Status, Fmi2Variability
 
-from tendonkit import __version__
-from tendonkit.robot import PAPER_RATIOS, RobotParameters
-from tendonkit.robot.kinematics import expand_joints, forward_kinematics
-from tendonkit.schema import Model
-from tendonkit.stepper import Stepper
+#: Why tendonkit cannot be used in this (the importer's) Python, or None.  A slave module that
+#: fails to import makes pythonfmu return no instance, and some importers (libcosim, Ecos) then
+#: crash; this slave instead instantiates, names the problem in the log and refuses every step.
+MISSING: str | None = None
+try:
+    import numpy as np
+
+    from tendonkit import __version__
+    from tendonkit.robot import PAPER_RATIOS, RobotParameters
+    from tendonkit.robot.kinematics import expand_joints, forward_kinematics
+    from tendonkit.schema import Model
+    from tendonkit.stepper import Stepper
+except ImportError as _exc:  # pragma: no cover - exercised in a subprocess by the tests
+    MISSING = f"{type(_exc).__name__}: {_exc}"
 
 #: Resource holding the model (schema JSON).
 MODEL_FILE = "model.json"
@@ -83,6 +92,9 @@ class TendonModel(Fmi2Slave):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
+        if MISSING is not None:
+            self._without_tendonkit()
+            return
         model, config = read_resources(self.resources)
         self.model = model
         self.description = f"tendonkit {model.kind} model {model.name!r} (step {model.dt:g} s)"
@@ -147,6 +159,51 @@ class TendonModel(Fmi2Slave):
                 )
             )
 
+    def _without_tendonkit(self) -> None:
+        """The variables of the archive (read as plain JSON), all NaN; every step refused."""
+        folder = Path(self.resources or ".")
+        data = json.loads((folder / MODEL_FILE).read_text(encoding="utf-8"))
+        config_path = folder / CONFIG_FILE
+        config = (
+            json.loads(config_path.read_text(encoding="utf-8")) if config_path.is_file() else {}
+        )
+        kinematics = bool(config.get("kinematics", False))
+        inputs = [s["name"] for s in data["inputs"]]
+        outputs = [s["name"] for s in data["outputs"]] + (list(JOINTS + EE) if kinematics else [])
+        self._dt = float(data["dt"])
+        self._n_in, self._n_out = len(inputs), len(outputs)
+        self._n_io = self._n_in + self._n_out
+        self._missing = (
+            f"this FMU needs tendonkit {config.get('tendonkit_version', '')} in the Python that "
+            f"runs it, and it cannot be imported ({MISSING}); install it there "
+            "('pip install tendonkit'), or export the model with a backend that needs no Python"
+        )
+        nan = math.nan
+        for name in inputs:
+            self.register_variable(
+                Real(name, causality=Fmi2Causality.input, getter=lambda: nan, setter=lambda v: None)
+            )
+        for name in outputs:
+            self.register_variable(
+                Real(
+                    name,
+                    causality=Fmi2Causality.output,
+                    initial=Fmi2Initial.calculated,
+                    getter=lambda: nan,
+                )
+            )
+        for name in RATIO_NAMES if kinematics else ():
+            self.register_variable(
+                Real(
+                    name,
+                    causality=Fmi2Causality.parameter,
+                    variability=Fmi2Variability.tunable,
+                    getter=lambda: nan,
+                    setter=lambda v: None,
+                )
+            )
+        self.log(self._missing, Fmi2Status.error)
+
     # ------------------------------------------------------------------ accessors
     def _input_getter(self, k: int) -> Callable[[], float]:
         return lambda: self._u[k]
@@ -173,6 +230,8 @@ class TendonModel(Fmi2Slave):
 
     def get_real(self, vrs: list[int]) -> list[float]:
         """Fast path for inputs and outputs."""
+        if MISSING is not None:
+            return [math.nan] * len(vrs)
         if vrs and min(vrs) >= 0 and max(vrs) < self._n_io:
             n_in = self._n_in
             y = self._outputs() if max(vrs) >= n_in else []
@@ -182,6 +241,8 @@ class TendonModel(Fmi2Slave):
 
     def set_real(self, vrs: list[int], values: list[float]) -> None:
         """Fast path for the inputs."""
+        if MISSING is not None:
+            return
         if vrs == self._in_vrs:
             self._u = [float(v) for v in values]
             self._y = None
@@ -220,6 +281,9 @@ class TendonModel(Fmi2Slave):
 
     def do_step(self, current_time: float, step_size: float) -> bool:
         """Commit the current inputs and advance one model sample; refuse other step sizes."""
+        if MISSING is not None:
+            self.log(self._missing, Fmi2Status.error)
+            return False
         if abs(step_size - self._dt) > 1e-9 * max(1.0, self._dt):
             self.log(
                 f"communication step {step_size!r} s refused: this model FMU steps at exactly "

@@ -32,7 +32,7 @@ typecheck: $(STAMP)
 
 # Both cores (pytest-xdist), one BLAS thread per worker (two workers with two BLAS threads each
 # oversubscribe a 2-core machine); every test is safe in parallel (tmp_path, atomic caches).
-# --dist loadgroup: a module marked xdist_group runs on one worker, so its module-scoped
+# --dist loadgroup: a module marked xdist_group runs on one worker, so its session-scoped
 # fixtures (the demo run, built FMUs) are built once instead of once per worker.
 ONE_THREAD := OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1
 pytest: $(STAMP)

@@ -22,7 +22,8 @@ from tendonkit.fmu.plant import Plant, PlantConfig
 from tendonkit.robot.collect import COLUMNS, PlantSession, collect
 from tendonkit.robot.protocol import circles, pseudo_random
 
-# one worker runs this module: its module-scoped fixtures are built once (make test)
+# one worker runs this module (make test: --dist loadgroup), and its session-scoped fixtures
+# are built once there (module scope would rebuild them when other tests interleave)
 pytestmark = pytest.mark.xdist_group("test_collect")
 
 pytest.importorskip("fmpy")
@@ -37,7 +38,7 @@ GROUPS = {
 }
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def plant_fmu(tmp_path_factory):
     return build_plant_fmu(tmp_path_factory.mktemp("collect") / "plant.fmu")
 

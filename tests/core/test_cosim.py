@@ -40,18 +40,19 @@ from tendonkit.schema import ARX, Block, Signal
 from tendonkit.terms import Factor, Term
 from tendonkit.testsystems import random_state_space
 
-# one worker runs this module: its module-scoped fixtures are built once (make test)
+# one worker runs this module (make test: --dist loadgroup), and its session-scoped fixtures
+# are built once there (module scope would rebuild them when other tests interleave)
 pytestmark = pytest.mark.xdist_group("test_cosim")
 
 pytest.importorskip("fmpy")
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def plant_fmu(tmp_path_factory):
     return build_plant_fmu(tmp_path_factory.mktemp("cosim") / "plant.fmu")
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def model_json(tmp_path_factory):
     path = tmp_path_factory.mktemp("models") / "two_mode.json"
     two_mode_model(gain=0.0025).save(path)

@@ -32,7 +32,8 @@ from tendonkit.schema import ARX, Block, Model, Signal, SparseMap, StateSpace
 from tendonkit.simulate import simulate
 from tendonkit.terms import Factor, Term
 
-# one worker runs this module: its module-scoped fixtures are built once (make test)
+# one worker runs this module (make test: --dist loadgroup), and its session-scoped fixtures
+# are built once there (module scope would rebuild them when other tests interleave)
 pytestmark = pytest.mark.xdist_group("test_mpc")
 
 U0 = np.full(4, 105.0)
@@ -94,7 +95,7 @@ def sine_ref(n: int = 300) -> np.ndarray:
     return np.c_[0.5 * np.sin(2 * np.pi * 0.5 * t), 0.5 * np.cos(2 * np.pi * 0.4 * t) - 0.1]
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def robot():
     return two_mode_model()
 

@@ -30,7 +30,8 @@ from tendonkit.schema import ARX, Block, Model, Signal, SparseMap, StateSpace
 from tendonkit.simulate import simulate
 from tendonkit.terms import Factor, Term
 
-# one worker runs this module: its module-scoped fixtures are built once (make test)
+# one worker runs this module (make test: --dist loadgroup), and its session-scoped fixtures
+# are built once there (module scope would rebuild them when other tests interleave)
 pytestmark = pytest.mark.xdist_group("test_model_fmu")
 
 pytest.importorskip("fmpy")
@@ -48,7 +49,7 @@ def plant_data(seed: int, seconds: float) -> tk.Dataset:
     )
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def identified():
     train = plant_data(1, 90.0)
     return {
@@ -59,7 +60,7 @@ def identified():
     }
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def validation():
     return plant_data(2, 15.0).experiments[0].u
 

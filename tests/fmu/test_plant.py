@@ -29,7 +29,8 @@ from tendonkit.robot import RobotParameters
 from tendonkit.robot.kinematics import rest_inertia
 from tendonkit.robot.protocol import circles, pseudo_random
 
-# one worker runs this module: its module-scoped fixtures are built once (make test)
+# one worker runs this module (make test: --dist loadgroup), and its session-scoped fixtures
+# are built once there (module scope would rebuild them when other tests interleave)
 pytestmark = pytest.mark.xdist_group("test_plant")
 
 ROBOT = RobotParameters()
@@ -106,7 +107,7 @@ def pan_drive(y: dict[str, np.ndarray]) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- nominal plant
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def paper_run():
     prot = circles()
     return prot, Plant().run(prot.u)

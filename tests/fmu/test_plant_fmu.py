@@ -23,7 +23,8 @@ from tendonkit.fmu.plant import Plant, PlantConfig
 from tendonkit.fmu.plant_fmu import INPUTS, OUTPUTS, STEP, read_parameters
 from tendonkit.robot.protocol import pseudo_random
 
-# one worker runs this module: its module-scoped fixtures are built once (make test)
+# one worker runs this module (make test: --dist loadgroup), and its session-scoped fixtures
+# are built once there (module scope would rebuild them when other tests interleave)
 pytestmark = pytest.mark.xdist_group("test_plant_fmu")
 
 fmpy = pytest.importorskip("fmpy")
@@ -42,7 +43,7 @@ EFFECTS = PlantConfig(
 )
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def fmus(tmp_path_factory):
     folder = tmp_path_factory.mktemp("plant_fmu")
     nominal = build_plant_fmu(folder / "nominal.fmu")
@@ -50,7 +51,7 @@ def fmus(tmp_path_factory):
     return {"nominal": nominal, "effects": effects}
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def commands():
     """20 s of the pseudo-random protocol: fast, and it exercises every tendon."""
     return pseudo_random(20.0, seed=2).u

@@ -54,7 +54,7 @@ def _load_tbb() -> None:
     ctypes.CDLL(str(candidates[0]), mode=ctypes.RTLD_GLOBAL)
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def fmus(tmp_path_factory):
     rec = Plant().record(pseudo_random(60.0, seed=3).u)
     train = tk.Dataset.from_arrays(
@@ -70,7 +70,7 @@ def fmus(tmp_path_factory):
     return {**paths, "models": models}
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def commands():
     rec = Plant().record(pseudo_random(6.0, seed=9).u)
     return rec["T_meas"]

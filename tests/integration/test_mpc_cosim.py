@@ -129,7 +129,7 @@ def _training_data(fmu: Any) -> Dataset:
     )
 
 
-@pytest.fixture(scope="module", params=["nominal", "paper_like"])
+@pytest.fixture(scope="session", params=["nominal", "paper_like"])
 def plant(request, tmp_path_factory) -> PlantCase:
     name = request.param
     config = PlantConfig.preset(name).replace(noise_on=True)

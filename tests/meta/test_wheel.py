@@ -17,13 +17,14 @@ from pathlib import Path
 import pytest
 import rooms
 
-# one worker runs this module: its module-scoped fixtures are built once (make test)
+# one worker runs this module (make test: --dist loadgroup), and its session-scoped fixtures
+# are built once there (module scope would rebuild them when other tests interleave)
 pytestmark = pytest.mark.xdist_group("test_wheel")
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def wheel(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("wheel")
     r = subprocess.run(

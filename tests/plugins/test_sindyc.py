@@ -21,7 +21,8 @@ from tendonkit.simulate import simulate, simulate_dataset
 from tendonkit.terms import CompiledTerms
 from tendonkit.testing import identifier_checks
 
-# one worker runs this module: its module-scoped fixtures are built once (make test)
+# one worker runs this module (make test: --dist loadgroup), and its session-scoped fixtures
+# are built once there (module scope would rebuild them when other tests interleave)
 pytestmark = pytest.mark.xdist_group("test_sindyc")
 
 Step = Callable[[np.ndarray, np.ndarray], np.ndarray]
@@ -130,12 +131,12 @@ def chosen_threshold(model: Model) -> float:
     return float(match.group(1))
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def unit_model() -> Model:
     return SINDYc(normalize=False).identify(unit_data(seed=1))
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def robot_model() -> Model:
     return SINDYc().identify(robot_data(seed=2))
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import fcntl
 import json
 import re
 import subprocess
@@ -13,16 +14,28 @@ pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("test_demo")]
 
 
 @pytest.fixture(scope="session")
-def demo(tmp_path_factory):
-    out = tmp_path_factory.mktemp("demo")
-    r = subprocess.run(
-        [sys.executable, "-m", "tendonkit.cli", "demo", "--quick", "--out", str(out)],
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
-    assert r.returncode == 0, r.stderr[-3000:]
-    return out, r.stdout
+def demo(tmp_path_factory, testrun_uid):
+    """One demo run per test session, shared by every xdist worker (a file lock, one writer).
+
+    ``--dist loadgroup`` does not always keep this module's tests on one worker, so each
+    worker would otherwise run the demo (20 s) itself.
+    """
+    root = tmp_path_factory.getbasetemp().parent  # the same folder for every worker
+    out = root / f"demo-{testrun_uid}"
+    with open(root / f"demo-{testrun_uid}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        done = root / f"demo-{testrun_uid}.stdout"
+        if not done.exists():
+            out.mkdir(exist_ok=True)
+            r = subprocess.run(
+                [sys.executable, "-m", "tendonkit.cli", "demo", "--quick", "--out", str(out)],
+                capture_output=True,
+                text=True,
+                timeout=600,
+            )
+            assert r.returncode == 0, r.stderr[-3000:]
+            done.write_text(r.stdout)
+    return out, done.read_text()
 
 
 def test_files_are_produced(demo):

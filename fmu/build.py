@@ -17,7 +17,9 @@ parameters and the slave source.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
+import importlib.metadata
 import json
 import os
 import re
@@ -25,7 +27,7 @@ import shutil
 import sys
 import tempfile
 import zipfile
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -284,6 +286,37 @@ def _cache_root() -> Path:
     return Path(base) / "tendonkit"
 
 
+@contextlib.contextmanager
+def _installed_pythonfmu() -> Iterator[None]:
+    """Import the installed pythonfmu for a build, whatever this process imported before.
+
+    A pythonfmu FMU run in this process first (fmpy hosts the slave in-process) leaves the
+    copy of pythonfmu bundled in its resources as ``sys.modules["pythonfmu"]``; that copy has
+    no builder and no binaries.  Its modules are set aside for the build and put back after,
+    so the running slave keeps its own.
+    """
+    installed = Path(str(importlib.metadata.distribution("pythonfmu").locate_file("pythonfmu")))
+    loaded = sys.modules.get("pythonfmu")
+    here = Path(getattr(loaded, "__file__", "") or "").parent
+    if loaded is None or here.resolve() == installed.resolve():
+        yield
+        return
+
+    def ours() -> list[str]:
+        return [n for n in sys.modules if n == "pythonfmu" or n.startswith("pythonfmu.")]
+
+    aside = {n: sys.modules.pop(n) for n in ours()}
+    saved_path = list(sys.path)
+    sys.path.insert(0, str(installed.parent))  # the slave's resources folder may come first
+    try:
+        yield
+    finally:
+        sys.path[:] = saved_path
+        for n in ours():
+            del sys.modules[n]
+        sys.modules.update(aside)
+
+
 def _module_file(name: str) -> str:
     module = sys.modules.get(name)
     return str(getattr(module, "__file__", "?"))
@@ -305,9 +338,6 @@ def _build(
     description: str | None = None,
 ) -> Path:
     """Run pythonfmu on a private copy of ``script`` and finalise the model description."""
-    # lazy: heavy (pythonfmu)
-    from pythonfmu.builder import FmuBuilder
-
     path = Path(path)
     if not path.parent.is_dir():
         raise FMUError(f"The folder of {str(path)!r} does not exist.")
@@ -331,7 +361,11 @@ def _build(
             extra.append(target)
         built = Path(tmp) / "out.fmu"
         try:
-            FmuBuilder.build_FMU(src / f"{module}.py", dest=built, project_files=extra)
+            with _installed_pythonfmu():
+                # lazy: heavy (pythonfmu)
+                from pythonfmu.builder import FmuBuilder
+
+                FmuBuilder.build_FMU(src / f"{module}.py", dest=built, project_files=extra)
         except Exception as exc:  # pythonfmu raises bare exceptions
             raise FMUError(f"pythonfmu could not build {script.name}: {exc}") from exc
         finally:

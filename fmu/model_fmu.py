@@ -178,30 +178,21 @@ class TendonModel(Fmi2Slave):
             f"runs it, and it cannot be imported ({MISSING}); install it there "
             "('pip install tendonkit'), or export the model with a backend that needs no Python"
         )
-        nan = math.nan
-        for name in inputs:
-            self.register_variable(
-                Real(name, causality=Fmi2Causality.input, getter=lambda: nan, setter=lambda v: None)
-            )
-        for name in outputs:
-            self.register_variable(
-                Real(
-                    name,
-                    causality=Fmi2Causality.output,
-                    initial=Fmi2Initial.calculated,
-                    getter=lambda: nan,
-                )
-            )
-        for name in RATIO_NAMES if kinematics else ():
-            self.register_variable(
-                Real(
-                    name,
-                    causality=Fmi2Causality.parameter,
-                    variability=Fmi2Variability.tunable,
-                    getter=lambda: nan,
-                    setter=lambda v: None,
-                )
-            )
+        ignore = lambda value: None  # noqa: E731
+        for names, attrs in (
+            (inputs, {"causality": Fmi2Causality.input, "setter": ignore}),
+            (outputs, {"causality": Fmi2Causality.output, "initial": Fmi2Initial.calculated}),
+            (
+                RATIO_NAMES if kinematics else (),
+                {
+                    "causality": Fmi2Causality.parameter,
+                    "variability": Fmi2Variability.tunable,
+                    "setter": ignore,
+                },
+            ),
+        ):
+            for name in names:
+                self.register_variable(Real(name, getter=lambda: math.nan, **attrs))
         self.log(self._missing, Fmi2Status.error)
 
     # ------------------------------------------------------------------ accessors

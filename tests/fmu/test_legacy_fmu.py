@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from fmi_slave import open_slave
 
 from tendonkit.robot import PAPER_RATIOS
 from tendonkit.robot.kinematics import expand_joints, forward_kinematics
@@ -31,22 +32,9 @@ def _inputs(n: int = 120) -> np.ndarray:
 
 def _run(path: Path, u: np.ndarray) -> np.ndarray:
     """fmpy, FMI co-simulation order: set inputs, read outputs, doStep."""
-    from fmpy import extract, read_model_description
-    from fmpy.fmi2 import FMU2Slave
-
-    md = read_model_description(str(path))
+    md, fmu = open_slave(path, "legacy")
     vr = {v.name: v.valueReference for v in md.modelVariables}
     dt = float(md.defaultExperiment.stepSize)
-    fmu = FMU2Slave(
-        guid=md.guid,
-        unzipDirectory=extract(str(path)),
-        modelIdentifier=md.coSimulation.modelIdentifier,
-        instanceName="legacy",
-    )
-    fmu.instantiate()
-    fmu.setupExperiment(startTime=0.0)
-    fmu.enterInitializationMode()
-    fmu.exitInitializationMode()
     vin = [vr[n] for n in ("F1", "F2", "F3", "F4")]
     vout = [vr[n] for n in OUTPUTS]
     rows = []
@@ -116,7 +104,7 @@ def test_a_0_1_model_fmu_in_a_fresh_interpreter(tmp_path, python_warnings):
     np.save(tmp_path / "u.npy", u)
     code = (
         "import sys, numpy as np\n"
-        f"sys.path.insert(0, {str(Path(__file__).parent)!r})\n"
+        f"sys.path[:0] = [{str(Path(__file__).parent)!r}, {str(Path(__file__).parents[1])!r}]\n"
         "from test_legacy_fmu import _run, LEGACY\n"
         f"np.save({str(tmp_path / 'y.npy')!r}, _run(LEGACY, np.load({str(tmp_path / 'u.npy')!r})))\n"
     )
@@ -136,9 +124,6 @@ def test_a_0_1_fmu_and_a_current_fmu_in_one_process_each_run_their_own_slave(tmp
     Before, both archives held ``model_fmu.py``: after the 0.1 FMU ran, a current FMU in the
     same process ran the 0.1 slave (no FMU state, other variable names).
     """
-    from fmpy import extract, read_model_description
-    from fmpy.fmi2 import FMU2Slave
-
     from tendonkit.fmu.build import build_model_fmu
 
     u = _inputs(60)
@@ -149,18 +134,8 @@ def test_a_0_1_fmu_and_a_current_fmu_in_one_process_each_run_their_own_slave(tmp
     with zipfile.ZipFile(current) as z:
         names = z.namelist()
     assert any(n.startswith("resources/tendonkit_model_fmu_") for n in names), names
-    md = read_model_description(str(current))
+    md, fmu = open_slave(current, "current")
     vr = {v.name: v.valueReference for v in md.modelVariables}
-    fmu = FMU2Slave(
-        guid=md.guid,
-        unzipDirectory=extract(str(current)),
-        modelIdentifier=md.coSimulation.modelIdentifier,
-        instanceName="current",
-    )
-    fmu.instantiate()
-    fmu.setupExperiment(startTime=0.0)
-    fmu.enterInitializationMode()
-    fmu.exitInitializationMode()
     dt = float(md.defaultExperiment.stepSize)
     vin = [vr[n] for n in model.input_names]
     vout = [vr[n] for n in model.output_names]

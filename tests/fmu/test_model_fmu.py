@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from fmi_slave import open_slave
 
 import tendonkit as tk
 from tendonkit.cli import main
@@ -244,9 +245,8 @@ def test_ratios_are_tunable_during_the_run(tmp_path, identified, validation):
 
 
 def test_no_kinematics_exports_any_output_names_and_other_steps_are_refused(tmp_path):
-    from fmpy import extract, read_model_description
+    from fmpy import read_model_description
     from fmpy.fmi1 import FMICallException
-    from fmpy.fmi2 import FMU2Slave
 
     model = tk.testsystems.random_state_space(3, 2, 2, seed=1, dt=0.1)
     with pytest.raises(OptionError, match="outputs named q1 and q2"):
@@ -258,16 +258,7 @@ def test_no_kinematics_exports_any_output_names_and_other_steps_are_refused(tmp_
     u = np.random.default_rng(0).normal(size=(30, 2))
     got = run_fmu(path, u, model.input_names, model.output_names)
     np.testing.assert_allclose(got, simulate(model, u, initial="model"), rtol=0, atol=TOL)
-    fmu = FMU2Slave(
-        guid=md.guid,
-        unzipDirectory=extract(str(path)),
-        modelIdentifier=md.coSimulation.modelIdentifier,
-        instanceName="x",
-    )
-    fmu.instantiate()
-    fmu.setupExperiment(startTime=0.0)
-    fmu.enterInitializationMode()
-    fmu.exitInitializationMode()
+    _, fmu = open_slave(path, "x")
     with pytest.raises(FMICallException, match="discard"):
         fmu.doStep(0.0, 0.03)
     fmu.doStep(0.0, 0.1)  # the model's own step still works
@@ -306,29 +297,11 @@ def test_export_cli_with_ratios_file_and_clear_errors(tmp_path, identified, caps
 # -- issue 16, point 3: state, names, step size --------------------------------------------------
 
 
-def _slave(path: Path):
-    from fmpy import extract, read_model_description
-    from fmpy.fmi2 import FMU2Slave
-
-    md = read_model_description(str(path))
-    fmu = FMU2Slave(
-        guid=md.guid,
-        unzipDirectory=extract(str(path)),
-        modelIdentifier=md.coSimulation.modelIdentifier,
-        instanceName="model",
-    )
-    fmu.instantiate()
-    fmu.setupExperiment(startTime=0.0)
-    fmu.enterInitializationMode()
-    fmu.exitInitializationMode()
-    return md, fmu
-
-
 @pytest.mark.parametrize("method", ["n4sid", "arx_bilinear", "sindyc"])
 def test_fmu_state_get_set_and_serialise(tmp_path, identified, validation, method):
     """Importers that iterate (step, look, go back) get exactly the same run again."""
     path = build_model_fmu(identified[method], tmp_path / f"{method}.fmu")
-    md, fmu = _slave(path)
+    md, fmu = open_slave(path)
     assert md.coSimulation.canGetAndSetFMUstate and md.coSimulation.canSerializeFMUstate
     vr = {v.name: v.valueReference for v in md.modelVariables}
     vin, vout = [vr[n] for n in INPUTS], [vr[n] for n in JOINT_OUTPUTS]
@@ -400,7 +373,7 @@ def test_inputs_start_at_the_operating_point(tmp_path, identified):
     op = model.provenance.details["operating_point"]
     assert list(op) == INPUTS and all(60.0 < v < 150.0 for v in op.values()), op
     path = build_model_fmu(model, tmp_path / "m.fmu")
-    md, fmu = _slave(path)
+    md, fmu = open_slave(path)
     starts = {v.name: float(v.start) for v in md.modelVariables if v.causality == "input"}
     assert starts == pytest.approx(op)
     vr = {v.name: v.valueReference for v in md.modelVariables}
@@ -436,7 +409,7 @@ def test_an_identified_model_is_named_after_its_file(tmp_path, small_data):
 def test_reset_starts_the_same_run_again(tmp_path, identified, validation):
     """``fmi2Reset`` returns the slave to its initial state: the same inputs give the same run."""
     path = build_model_fmu(identified["arx_bilinear"], tmp_path / "m.fmu")
-    md, fmu = _slave(path)
+    md, fmu = open_slave(path)
     vr = {v.name: v.valueReference for v in md.modelVariables}
     vin, vout = [vr[n] for n in INPUTS], [vr[n] for n in JOINT_OUTPUTS]
     dt = float(md.defaultExperiment.stepSize)

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from fmi_slave import open_slave
 
 import tendonkit as tk
 from tendonkit.fmu.build import build_model_fmu
@@ -77,21 +78,8 @@ def commands():
 
 
 def run_fmpy(path: Path, u: np.ndarray, inputs=INPUTS, outputs=OUTPUTS) -> np.ndarray:
-    from fmpy import extract, read_model_description
-    from fmpy.fmi2 import FMU2Slave
-
-    md = read_model_description(str(path))
+    md, fmu = open_slave(path, "fmpy")
     vr = {v.name: v.valueReference for v in md.modelVariables}
-    fmu = FMU2Slave(
-        guid=md.guid,
-        unzipDirectory=extract(str(path)),
-        modelIdentifier=md.coSimulation.modelIdentifier,
-        instanceName="fmpy",
-    )
-    fmu.instantiate()
-    fmu.setupExperiment(startTime=0.0)
-    fmu.enterInitializationMode()
-    fmu.exitInitializationMode()
     rows = []
     for k, row in enumerate(u):
         fmu.setReal([vr[n] for n in inputs], list(row))

@@ -137,7 +137,6 @@ def frames(q: np.ndarray, robot: RobotParameters | None = None) -> ChainFrames:
     robot = _robot(robot)
     qb, _ = _as_batch(q, N_JOINTS, "q")
     n = qb.shape[0]
-    ez = np.array([0.0, 0.0, 1.0])
     rot = np.empty((n, N_JOINTS + 1, 3, 3))
     rot[:, 0] = np.eye(3)
     tops = np.zeros((n, N_JOINTS + 1, 3))
@@ -146,7 +145,6 @@ def frames(q: np.ndarray, robot: RobotParameters | None = None) -> ChainFrames:
     axes = np.empty((n, N_JOINTS, 3))
     centres = np.empty((n, N_JOINTS + 1, 3))
     ell = robot.link_pitch
-    del ez
     for i in range(N_JOINTS):
         radius = robot.R[i]
         qi = qb[:, i]

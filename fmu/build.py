@@ -28,6 +28,7 @@ import sys
 import tempfile
 import zipfile
 from collections.abc import Iterable, Iterator, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -40,11 +41,14 @@ from tendonkit.schema import Model
 from tendonkit.stepper import feedthrough
 
 __all__ = [
+    "BACKENDS",
     "EFFECT_SWITCHES",
     "UNIT_BASES",
+    "ExportResult",
     "build_model_fmu",
     "build_plant_fmu",
     "cached_plant_fmu",
+    "export_model_fmu",
     "finalize_model_description",
     "model_fmu_problems",
     "plant_parameters",
@@ -447,14 +451,55 @@ def model_fmu_problems(model: Model, kinematics: bool = True) -> list[str]:
     return problems
 
 
-def build_model_fmu(
+@dataclass(frozen=True)
+class ExportResult:
+    """What :func:`export_model_fmu` wrote.
+
+    Attributes
+    ----------
+    path : Path
+        The FMU.
+    backend : str
+        ``"c"`` (compiled runtime, no Python needed to run it) or ``"python"`` (pythonfmu).
+    fmi : int
+        FMI version, 2 or 3.
+    platforms : tuple of str
+        FMI 2.0 names of the platforms whose binaries are inside (``linux64``, ``win64``,
+        ``darwin64``).
+    notes : tuple of str
+        Why the export fell back to the Python backend, and which platforms are missing.
+    """
+
+    path: Path
+    backend: str
+    fmi: int
+    platforms: tuple[str, ...]
+    notes: tuple[str, ...] = ()
+
+    def summary(self) -> str:
+        """One line for a user: backend, FMI version, platforms."""
+        kind = "C, no Python needed" if self.backend == "c" else "Python (pythonfmu)"
+        return (
+            f"FMI {self.fmi}.0 co-simulation, {kind}, binaries for "
+            f"{', '.join(self.platforms) or 'no platform'}"
+        )
+
+
+BACKENDS = ("c", "python")
+
+
+def export_model_fmu(
     model: Model,
     path: str | Path,
     ratios: Sequence[float] | None = None,
     kinematics: bool = True,
     robot: RobotParameters | None = None,
-) -> Path:
-    """Export ``model`` as an FMI 2.0 co-simulation FMU (see :mod:`tendonkit.fmu.model_fmu`).
+    *,
+    backend: str | None = None,
+    fmi: int = 2,
+    platforms: Sequence[str] | None = None,
+) -> ExportResult:
+    """Export ``model`` as a co-simulation FMU (see :mod:`tendonkit.fmu.cfmu`, docs/fmu.md).
 
     Parameters
     ----------
@@ -469,11 +514,20 @@ def build_model_fmu(
         Add q3..q6 and the end effector (needs outputs ``q1`` and ``q2``).
     robot : RobotParameters, optional
         Geometry of the forward kinematics; the nominal robot by default.
+    backend : {"c", "python"}, optional
+        ``"c"``: the compiled runtime (no Python on the target); ``"python"``: a pythonfmu
+        slave that needs tendonkit in the importer's Python.  By default C, falling back to
+        Python (FMI 2.0 only) when the model has a part without a C form or no binary can
+        be built here; the result's ``notes`` say why.
+    fmi : {2, 3}
+        FMI version (3 needs the C backend).
+    platforms : sequence of str, optional
+        Platforms to put binaries in for (C backend): ``linux64``, ``win64``, ``darwin64``;
+        all that can be built here by default.
 
     Returns
     -------
-    Path
-        ``path``.
+    ExportResult
 
     Raises
     ------
@@ -481,21 +535,42 @@ def build_model_fmu(
         The model cannot be exported as asked (every reason listed).
     """
     # lazy: heavy (pythonfmu, through the slave module)
+    from tendonkit.fmu import cfmu
     from tendonkit.fmu import model_fmu as slave
 
     problems = model_fmu_problems(model, kinematics)
     r = tuple(float(x) for x in (ratios if ratios is not None else PAPER_RATIOS[2:]))
     if len(r) != 4:
         problems.append(f"ratios must hold 4 numbers (q3/q1, q4/q2, q5/q1, q6/q2), found {r}.")
+    if backend is not None and backend not in BACKENDS:
+        problems.append(f"backend must be one of {', '.join(BACKENDS)}, found {backend!r}.")
+    if fmi not in (2, 3):
+        problems.append(f"fmi must be 2 or 3, found {fmi!r}.")
+    if backend == "python" and fmi == 3:
+        problems.append("the Python backend (pythonfmu) writes FMI 2.0 only; use --backend c.")
+    unknown = [p for p in (platforms or ()) if p not in cfmu.PLATFORMS]
+    if unknown:
+        problems.append(f"unknown platforms {unknown}; known: {', '.join(cfmu.PLATFORMS)}.")
+    c_why = cfmu.c_problems(model) if backend != "python" else []
+    if c_why and (backend == "c" or fmi == 3):
+        problems.append(f"the C backend cannot export this model: {'; '.join(c_why)}.")
     raise_if(problems, OptionError, f"Model {model.name!r} cannot be exported:")
-    config = {
-        "kinematics": kinematics,
-        "ratios": list(r),
-        "robot": (robot or RobotParameters()).to_dict(),
-        "tendonkit_version": __version__,
-    }
-    resources = {slave.MODEL_FILE: model.to_json(), slave.CONFIG_FILE: json.dumps(config)}
-    inputs, outputs, _ = slave.export_layout(model, kinematics)
+    robot = robot or RobotParameters()
+    notes: list[str] = []
+    build = None
+    if backend != "python" and not c_why:
+        build = cfmu.runtime_binaries(platforms)
+        notes += [f"no {p} binary: {why}" for p, why in build.missing.items()]
+        if not build.binaries:
+            if backend == "c" or fmi == 3:
+                raise FMUError(
+                    "No binary of the C runtime could be built here: " + "; ".join(notes)
+                )
+            c_why = ["no platform binary could be built here"]
+    if backend != "python" and c_why:
+        notes.insert(0, f"fell back to the Python backend: {'; '.join(c_why)}")
+    op = model.provenance.details.get("operating_point", {})
+    inputs, outputs, params = slave.export_layout(model, kinematics)
     units = {s.name: s.unit for s in (*model.inputs, *model.outputs) if s.unit}
     if kinematics:
         units.update(dict.fromkeys(slave.JOINTS, "rad"))
@@ -505,8 +580,59 @@ def build_model_fmu(
     if kinematics:
         for table, with_ratios in ((deps, False), (first, True)):
             _add_kinematic_dependencies(table, model.input_names, with_ratios)
+    description = (
+        f"tendonkit {model.kind} model {model.name!r} ({len(model.inputs)} inputs, "
+        f"{len(model.outputs)} outputs, step {model.dt:g} s"
+        + (", with q3..q6 and the end effector reconstructed" if kinematics else "")
+        + f"), exported by tendonkit {__version__}"
+    )
+    path = Path(path)
+    if not path.parent.is_dir():
+        raise FMUError(f"The folder of {str(path)!r} does not exist.")
+    if build is not None and build.binaries:
+        start = [float(op.get(n, 0.0)) if isinstance(op, dict) else 0.0 for n in inputs]
+        variables = cfmu.Variables(
+            inputs=inputs,
+            outputs=outputs,
+            parameters=params,
+            start={**dict(zip(inputs, start, strict=True)), **dict(zip(params, r, strict=False))},
+            units=units,
+            descriptions={
+                **{n: f"model input {n}" for n in inputs},
+                **{
+                    n: slave._output_description(n, j < len(model.outputs))
+                    for j, n in enumerate(outputs)
+                },
+                **{
+                    n: f"constant joint-angle ratio {slave.JOINTS[i]}/q{1 + i % 2}"
+                    for i, n in enumerate(params)
+                },
+            },
+            outputs_deps={name: deps[name] for name in outputs},
+            initial_deps={name: first[name] for name in outputs},
+        )
+        resource = cfmu.model_resource(
+            model, kinematics=kinematics, ratios=r, robot=robot, start=start
+        )
+        cfmu.write_c_fmu(
+            path,
+            model,
+            variables,
+            fmi=fmi,
+            resource=resource,
+            build=build,
+            description=description,
+        )
+        return ExportResult(path, "c", fmi, tuple(build.binaries), tuple(notes))
+    config = {
+        "kinematics": kinematics,
+        "ratios": list(r),
+        "robot": robot.to_dict(),
+        "tendonkit_version": __version__,
+    }
+    resources = {slave.MODEL_FILE: model.to_json(), slave.CONFIG_FILE: json.dumps(config)}
     naming = "structured" if all(_IDENTIFIER.match(n) for n in inputs + outputs) else "flat"
-    return _build(
+    _build(
         _HERE / "model_fmu.py",
         path,
         resources,
@@ -518,13 +644,40 @@ def build_model_fmu(
         naming=naming,
         state=True,
         model_name=model.name,
-        description=(
-            f"tendonkit {model.kind} model {model.name!r} ({len(model.inputs)} inputs, "
-            f"{len(model.outputs)} outputs, step {model.dt:g} s"
-            + (", with q3..q6 and the end effector reconstructed" if kinematics else "")
-            + f"), exported by tendonkit {__version__}"
-        ),
+        description=description,
     )
+    with zipfile.ZipFile(path) as zf:
+        plats = sorted(
+            {
+                n.split("/")[1]
+                for n in zf.namelist()
+                if n.count("/") >= 2 and n.startswith("binaries/")
+            }
+        )
+    return ExportResult(path, "python", 2, tuple(plats), tuple(notes))
+
+
+def build_model_fmu(
+    model: Model,
+    path: str | Path,
+    ratios: Sequence[float] | None = None,
+    kinematics: bool = True,
+    robot: RobotParameters | None = None,
+    *,
+    backend: str | None = None,
+    fmi: int = 2,
+    platforms: Sequence[str] | None = None,
+) -> Path:
+    """Export ``model`` as a co-simulation FMU; :func:`export_model_fmu` without the report.
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
+    return export_model_fmu(
+        model, path, ratios, kinematics, robot, backend=backend, fmi=fmi, platforms=platforms
+    ).path
 
 
 def _add_kinematic_dependencies(

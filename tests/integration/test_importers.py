@@ -2,7 +2,8 @@
 
 The importers are libcosim (PyPI ``libcosimpy``, the Open Simulation Platform's C++ master,
 via FMI Library) and Ecos (PyPI ``ecospy``, a C++ co-simulation engine with its own FMI
-loader); fmpy is the reference.  All three host the pythonfmu FMU in this Python process.
+loader); fmpy is the reference.  Both backends are run: the C FMU (the default) and the
+pythonfmu FMU, which all three host in this Python process.
 Both importers set the inputs, call ``doStep`` and read the outputs after it, so fmpy is
 driven in the same order.  They must agree within 1e-9 (rad, m): the three runs execute the same
 slave code on the same inputs, so anything above rounding means an importer passed other
@@ -67,7 +68,11 @@ def fmus(tmp_path_factory):
         "n4sid": tk.identify(train, "n4sid", order=6),
         "sindyc": tk.identify(train, "sindyc"),
     }
-    paths = {name: build_model_fmu(m, folder / f"{name}.fmu") for name, m in models.items()}
+    paths = {
+        f"{name}-{backend}": build_model_fmu(m, folder / f"{name}-{backend}.fmu", backend=backend)
+        for name, m in models.items()
+        for backend in ("c", "python")
+    }
     return {**paths, "models": models}
 
 
@@ -137,10 +142,11 @@ def run_ecos(path: Path, u: np.ndarray, inputs=INPUTS, outputs=OUTPUTS) -> np.nd
     return np.array(rows)
 
 
+@pytest.mark.parametrize("backend", ["c", "python"])
 @pytest.mark.parametrize("which", ["arx-feedthrough", "n4sid", "sindyc"])
 @pytest.mark.parametrize("importer", ["libcosim", "ecos"])
-def test_importer_outputs_equal_fmpy(fmus, commands, which, importer):
-    path = fmus[which]
+def test_importer_outputs_equal_fmpy(fmus, commands, which, importer, backend):
+    path = fmus[f"{which}-{backend}"]
     reference = run_fmpy(path, commands)
     got = (run_libcosim if importer == "libcosim" else run_ecos)(path, commands)
     assert got.shape == reference.shape == (len(commands), len(OUTPUTS))
@@ -148,9 +154,10 @@ def test_importer_outputs_equal_fmpy(fmus, commands, which, importer):
     np.testing.assert_allclose(got, reference, rtol=0, atol=TOL)
 
 
+@pytest.mark.parametrize("backend", ["c", "python"])
 @pytest.mark.parametrize("which", ["n4sid", "sindyc"])
 @pytest.mark.parametrize("importer", ["fmpy", "libcosim", "ecos"])
-def test_importer_outputs_equal_tendonkit_simulate(fmus, commands, which, importer):
+def test_importer_outputs_equal_tendonkit_simulate(fmus, commands, which, importer, backend):
     """An independent reference: ``simulate`` and the reconstruction, not the slave's own code.
 
     Importers set ``u(t_k)``, step, then read: without direct feedthrough (these two models)
@@ -166,7 +173,7 @@ def test_importer_outputs_equal_tendonkit_simulate(fmus, commands, which, import
     q = expand_joints(y, tk.robot.PAPER_RATIOS)
     expected = np.hstack([y, q[:, 2:], forward_kinematics(q)])[1:]
     run = {"fmpy": run_fmpy, "libcosim": run_libcosim, "ecos": run_ecos}[importer]
-    got = run(fmus[which], commands)[:-1]
+    got = run(fmus[f"{which}-{backend}"], commands)[:-1]
     np.testing.assert_allclose(got, expected, rtol=0, atol=TOL)
 
 
@@ -249,7 +256,7 @@ def test_an_importer_without_tendonkit_gets_a_message_not_a_crash(fmus, importer
         _require("ecospy", "ecospy")
         tbb = str(sorted(Path(sys.prefix, "lib").glob("libtbb.so.12*"))[0])
     r = subprocess.run(
-        [sys.executable, "-c", _WITHOUT_TENDONKIT, str(fmus["n4sid"]), importer, tbb],
+        [sys.executable, "-c", _WITHOUT_TENDONKIT, str(fmus["n4sid-python"]), importer, tbb],
         capture_output=True,
         text=True,
         timeout=300,

@@ -1,4 +1,4 @@
-"""The ``export`` subcommand: a model JSON as an FMI 2.0 co-simulation FMU.
+"""The ``export`` subcommand: a model JSON as an FMI 2.0 or 3.0 co-simulation FMU.
 
 The FMU side (:mod:`tendonkit.fmu`, pythonfmu) is imported inside the command, so
 ``tendonkit --help`` stays instant.
@@ -16,7 +16,10 @@ from .common import check_output_path, load_model, raise_problems
 
 def add_commands(sub: Any) -> None:
     """Add ``export`` to the ``tendonkit`` subparsers."""
-    p = sub.add_parser("export", help="export a model as an FMI 2.0 co-simulation FMU")
+    p = sub.add_parser(
+        "export",
+        help="export a model as an FMI co-simulation FMU (compiled C; no Python needed to run it)",
+    )
     p.add_argument("model", help="model JSON file")
     p.add_argument("-o", "--output", required=True, help="FMU file to write")
     p.add_argument(
@@ -28,6 +31,21 @@ def add_commands(sub: Any) -> None:
         "--no-kinematics",
         action="store_true",
         help="export only the modelled outputs (no q3..q6, no end effector)",
+    )
+    p.add_argument("--fmi", type=int, choices=(2, 3), default=2, help="FMI version (default: 2)")
+    p.add_argument(
+        "--backend",
+        choices=("c", "python"),
+        help="c: the compiled runtime, runs in any FMI importer without Python (default; "
+        "falls back to python, with a note, for a model part that has no C form); "
+        "python: a pythonfmu slave that needs tendonkit in the importer's Python",
+    )
+    p.add_argument(
+        "--platform",
+        action="append",
+        choices=("linux64", "win64", "darwin64"),
+        help="put binaries in for this platform (repeatable; default: every platform that "
+        "can be built here)",
     )
     p.set_defaults(func=cmd_export)
 
@@ -49,9 +67,9 @@ def _read_ratios(path: str, problems: list[str]) -> tuple[float, ...] | None:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    """Export a model JSON as an FMI 2.0 co-simulation FMU."""
+    """Export a model JSON as an FMI co-simulation FMU."""
     # lazy: keeps the CLI off tendonkit.fmu (pythonfmu) until a command needs it
-    from tendonkit.fmu.build import build_model_fmu, model_fmu_problems
+    from tendonkit.fmu.build import export_model_fmu, model_fmu_problems
 
     problems: list[str] = []
     model = load_model(args.model, problems)
@@ -61,14 +79,26 @@ def cmd_export(args: argparse.Namespace) -> int:
     ratios = _read_ratios(args.ratios, problems) if args.ratios else None
     if args.ratios and args.no_kinematics:
         problems.append("--ratios has no effect with --no-kinematics.")
+    if args.backend == "python" and args.fmi == 3:
+        problems.append("--backend python writes FMI 2.0 only (pythonfmu); use --backend c.")
     if model is not None:
         problems.extend(model_fmu_problems(model, kinematics=not args.no_kinematics))
     raise_problems(problems, "tendonkit export cannot run:")
     assert model is not None
-    path = build_model_fmu(model, args.output, ratios=ratios, kinematics=not args.no_kinematics)
+    result = export_model_fmu(
+        model,
+        args.output,
+        ratios=ratios,
+        kinematics=not args.no_kinematics,
+        backend=args.backend,
+        fmi=args.fmi,
+        platforms=args.platform,
+    )
     what = "modelled outputs only" if args.no_kinematics else "q1..q6 and the end effector"
     print(
-        f"{model.kind} model {model.name!r} exported to {path} "
-        f"(FMI 2.0 co-simulation, step {model.dt:g} s, {what})"
+        f"{model.kind} model {model.name!r} exported to {result.path} "
+        f"({result.summary()}; step {model.dt:g} s, {what})"
     )
+    for note in result.notes:
+        print(f"note: {note}")
     return 0

@@ -186,6 +186,54 @@ def arx_loop(  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
+def arx_linear_loop(U, Y, G, g0, off, Acat, na, start, L):  # pragma: no cover - numba
+    """Linear ARX: ``Y[k+L] = off + Σ_l G[l]·U[k+L-g0-l] - Acat·[Y[k+L-1]; …; Y[k+L-na]]``.
+
+    What :func:`arx_loop` does without terms (``G`` starts at lag ``g0``, the input delay),
+    with the sums split over two accumulators each (even and odd lags): the chains of
+    dependent additions are half as long, which is what bounds a loop this small.  Same NaN
+    rule as :func:`arx_loop`.
+    """
+    N = U.shape[0] - L
+    ny, nu = Y.shape[1], U.shape[1]
+    nl = G.shape[0]
+    for k in range(start, N):
+        kk = k + L
+        ok = True
+        for i in range(ny):
+            a0 = off[i]
+            a1 = 0.0
+            g = 0
+            while g + 1 < nl:
+                r0 = kk - g0 - g
+                for j in range(nu):
+                    a0 += G[g, i, j] * U[r0, j]
+                    a1 += G[g + 1, i, j] * U[r0 - 1, j]
+                g += 2
+            if g < nl:
+                r0 = kk - g0 - g
+                for j in range(nu):
+                    a0 += G[g, i, j] * U[r0, j]
+            b0 = 0.0
+            b1 = 0.0
+            for w in range(na):
+                row = kk - 1 - w
+                if w & 1:
+                    for j in range(ny):
+                        b1 += Acat[i, w * ny + j] * Y[row, j]
+                else:
+                    for j in range(ny):
+                        b0 += Acat[i, w * ny + j] * Y[row, j]
+            acc = (a0 + a1) - (b0 + b1)
+            Y[kk, i] = acc
+            if not np.isfinite(acc):
+                ok = False
+        if not ok:
+            Y[kk:] = np.nan
+            return
+
+
+@njit(cache=True, nogil=True)
 def ss_terms_loop(  # pragma: no cover - numba
     U, Y, u, x, A, B, C, D, E, L, ptr, src, col, lag, diff, code, power, scale, offset, param
 ):

@@ -37,6 +37,15 @@ def _arx_parts(model: Model, rep: ARX) -> tuple[FloatArray, list[FloatArray], Fl
     return Acat, G, off
 
 
+def _forced(U: FloatArray, G: list[FloatArray], off: FloatArray, L: int, N: int) -> FloatArray:
+    """Offset plus ``Σ_l G_l u[k-l]`` for every sample ``k`` (``U`` padded with ``L`` samples)."""
+    forced = np.zeros((N, G[0].shape[0])) + off
+    for lag, Gl in enumerate(G):
+        if np.any(Gl):
+            forced += U[L - lag : L - lag + N] @ Gl.T
+    return forced
+
+
 def _sim_arx(
     model: Model,
     rep: ARX,
@@ -49,9 +58,11 @@ def _sim_arx(
     N = u.shape[0]
     Acat, G, off = _arx_parts(model, rep)
     L = arx_max_lag(rep, nu)
-    # history buffers padded with L samples before t=0
-    Y = np.zeros((N + L, ny))
-    U = np.zeros((N + L, nu))
+    # history buffers padded with L samples before t=0 (zero; every later row is written)
+    Y = np.empty((N + L, ny))
+    Y[:L] = 0.0
+    U = np.empty((N + L, nu))
+    U[:L] = 0.0
     U[L:] = u
     start = 0
     if isinstance(initial, str) and initial == "estimate":
@@ -68,6 +79,21 @@ def _sim_arx(
         return Y[L:]
     na = rep.na
     coef = rep.term_coefficients
+    if compiled and linear and ny > 1:
+        used = [lag for lag, Gl in enumerate(G) if np.any(Gl)] or [0]
+        g0, g1 = used[0], used[-1] + 1  # the input delay, and past the last lag used
+        _kernel.arx_linear_loop(
+            U,
+            Y,
+            np.ascontiguousarray(np.array(G[g0:g1], dtype=float).reshape(g1 - g0, ny, nu)),
+            g0,
+            np.ascontiguousarray(off, dtype=float),
+            np.ascontiguousarray(Acat, dtype=float),
+            na,
+            start,
+            L,
+        )
+        return Y[L:]
     if compiled and not (linear and ny == 1):
         # Every term is evaluated per step from flat arrays (no time-varying split needed).
         terms = () if linear else rep.terms
@@ -92,10 +118,7 @@ def _sim_arx(
         )
         return Y[L:]
     # Input contribution for every sample at once (the inputs are known).
-    forced = np.zeros((N, ny)) + off
-    for lag, Gl in enumerate(G):
-        if np.any(Gl):
-            forced += U[L - lag : L - lag + N] @ Gl.T
+    forced = _forced(U, G, off, L, N)
     if linear and ny == 1 and start < N:
         # Single output: the recursion is an IIR filter of the input contribution (C speed).
         # lazy: heavy (scipy.signal)

@@ -360,3 +360,42 @@ def test_cli_export_reports_backend_and_platforms(tmp_path, robot_model, capsys)
     assert read_model_description(str(out)).fmiVersion == "3.0"
     assert main(["export", str(src), "-o", str(tmp_path / "p.fmu"), "--backend", "python",
                  "--fmi", "3"]) == 2  # fmt: skip
+
+
+_AFTER_A_SESSION = r"""
+import gc, sys
+from fmpy import extract, instantiate_fmu, read_model_description
+from tendonkit.fmu.build import cached_plant_fmu
+from tendonkit.robot.collect import PlantSession
+session = PlantSession(cached_plant_fmu())
+session.close()
+del session
+gc.collect()
+md = read_model_description(sys.argv[1])
+fmu = instantiate_fmu(extract(sys.argv[1]), md, fmi_type="CoSimulation")
+fmu.setupExperiment(startTime=0.0)
+fmu.enterInitializationMode()
+fmu.exitInitializationMode()
+try:
+    fmu.doStep(0.0, 123.0)  # refused: the FMU logs an error through fmpy's logger proxy
+except Exception as exc:
+    print("REFUSED", exc)
+print("ALIVE")
+"""
+
+
+def test_an_fmu_that_logs_after_a_closed_plant_session_does_not_crash(tmp_path):
+    """fmpy's logger proxy keeps the last logger registered; a plant session's must outlive it.
+
+    Before, ``PlantSession`` registered a logger of its own, freed with the session, and the
+    next FMU of the process that logged (a C model FMU refusing a step) crashed the process.
+    """
+    path = export(random_model(5, "arx_terms", 1.0), tmp_path, platforms=HOST)
+    r = subprocess.run(
+        [sys.executable, "-c", _AFTER_A_SESSION, str(path)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert r.returncode == 0 and "ALIVE" in r.stdout, (r.returncode, r.stdout, r.stderr[-2000:])
+    assert "REFUSED" in r.stdout and "communication step 123" in r.stdout

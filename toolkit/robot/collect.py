@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import ctypes
 import dataclasses
+import itertools
 import math
 import shutil
 import sys
@@ -146,6 +147,37 @@ class Recording:
         return dataclasses.replace(ds, units={n: UNITS[n] for n in (*inputs, *outputs)})
 
 
+#: Message lists of the live sessions, by the key each passes as its componentEnvironment.
+_SESSIONS: dict[int, list[tuple[int, str]]] = {}
+_SESSION_KEYS = itertools.count(1)
+_LOGGER: list[Any] = []
+
+
+def _session_logger() -> Any:
+    """The one FMI 2.0 logger of every session, alive for the whole process.
+
+    fmpy's logger proxy (``fmpy.logging.addLoggerProxy``, which formats printf-style messages)
+    keeps only the last logger registered with it, for every FMU of the process.  A logger per
+    session would be freed with its session, and the next FMU that logs anything in the
+    process — a C model FMU reporting an error, say — would call freed memory.  So all
+    sessions share this logger, which finds its session by the ``componentEnvironment`` key
+    and prints the messages of other FMUs as fmpy's default logger does.
+    """
+    if not _LOGGER:
+        # lazy: heavy (fmpy)
+        from fmpy.fmi2 import fmi2CallbackLoggerTYPE, printLogMessage
+
+        def dispatch(env: Any, name: Any, status: int, category: Any, message: bytes) -> None:
+            sink = _SESSIONS.get(int(env or 0))
+            if sink is not None:
+                sink.append((int(status), message.decode("utf-8", "replace")))
+            else:  # another FMU of the process: what fmpy's own logger does
+                printLogMessage(env, name, status, category, message)
+
+        _LOGGER.append(fmi2CallbackLoggerTYPE(dispatch))
+    return _LOGGER[0]
+
+
 class PlantSession:
     """One instance of a plant FMU under fmpy, stepped frame by frame.
 
@@ -247,16 +279,15 @@ class PlantSession:
             fmi2CallbackAllocateMemoryTYPE,
             fmi2CallbackFreeMemoryTYPE,
             fmi2CallbackFunctions,
-            fmi2CallbackLoggerTYPE,
         )
 
-        def logger(env: Any, name: Any, status: int, category: Any, message: bytes) -> None:
-            self.messages.append((int(status), message.decode("utf-8", "replace")))
-
+        key = next(_SESSION_KEYS)
+        _SESSIONS[key] = self.messages
         callbacks = fmi2CallbackFunctions()
-        callbacks.logger = fmi2CallbackLoggerTYPE(logger)
+        callbacks.logger = _session_logger()
         callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
         callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+        callbacks.componentEnvironment = ctypes.c_void_p(key)
         try:
             # lazy: heavy (fmpy)
             from fmpy.logging import addLoggerProxy
@@ -264,6 +295,7 @@ class PlantSession:
             addLoggerProxy(ctypes.byref(callbacks))
         except Exception:  # pragma: no cover - the proxy only formats printf-style messages
             pass
+        self._session_key = key
         return callbacks
 
     def _set(self, kind: str, vr: int, value: Any) -> None:
@@ -350,6 +382,7 @@ class PlantSession:
         if unzipped:
             shutil.rmtree(unzipped, ignore_errors=True)
             self._unzipped = None
+        _SESSIONS.pop(getattr(self, "_session_key", 0), None)
 
     def __enter__(self) -> PlantSession:
         return self

@@ -23,6 +23,7 @@ import contextlib
 import datetime
 import fcntl
 import hashlib
+import importlib.util
 import os
 import platform
 import re
@@ -70,6 +71,8 @@ FMI_HEADERS = (
 RESOURCE = "model.tkm"
 MAGIC, FORMAT = 7318.2026, 1.0  # tendonkit_runtime.h
 _LIMIT = 100_000  # the runtime's bound on counts and lags
+#: Part of the binaries' cache key: change it with the compiler commands of :func:`_compile`.
+_BUILD_RECIPE = "2"
 
 #: FMI 2.0 platform -> (FMI 3.0 platform tuple, zig target, shared-library suffix).
 PLATFORMS: dict[str, tuple[str, str, str]] = {
@@ -274,11 +277,16 @@ def _host_platform() -> str | None:
 
 
 def _zig() -> list[str] | None:
-    try:
-        import ziglang  # noqa: F401  (only whether it is there)
-    except ImportError:
+    if importlib.util.find_spec("ziglang") is None:
         return None
     return [sys.executable, "-m", "ziglang"]
+
+
+def _zig_include() -> Path:
+    """The Windows (mingw) headers inside the ziglang package."""
+    spec = importlib.util.find_spec("ziglang")
+    assert spec is not None and spec.origin is not None
+    return Path(spec.origin).parent / "lib" / "libc" / "include" / "any-windows-any"
 
 
 def _system_cc() -> str | None:
@@ -295,6 +303,7 @@ def _source_digest() -> str:
     for name in FMI_HEADERS:
         digest.update((_fmi_headers() / name).read_bytes())
     digest.update(" ".join(_MSVCRT).encode())
+    digest.update(_BUILD_RECIPE.encode())
     return digest.hexdigest()[:16]
 
 
@@ -333,10 +342,8 @@ def _compile(plat: str, out: Path, tmp: Path) -> str | None:
                     "-m", "i386:x86-64"], env)  # fmt: skip
         if err:
             return err
-        windows = Path(sys.modules["ziglang"].__file__ or "").parent / "lib/libc/include"
         cmd = [*zig, "cc", "-target", PLATFORMS[plat][1], *common, "-nostdlib", "-DTK_NO_CRT",
-               "-isystem", str(windows / "any-windows-any"), "-o", str(out), *sources, str(lib),
-               "-lkernel32"]  # fmt: skip
+               "-isystem", str(_zig_include()), "-o", str(out), *sources, str(lib)]  # fmt: skip
     else:
         cmd = [
             *zig,

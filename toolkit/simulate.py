@@ -15,7 +15,7 @@ simulated outputs after them.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -33,7 +33,7 @@ from ._simulate_arx import _sim_arx, arx_max_lag
 from .dataset import Dataset
 from .errors import DataError, SimulationError
 from .schema import ARX, Block, Model, SparseMap, StateSpace
-from .terms import CompiledTerms, series_getter
+from .terms import CompiledTerms, Term, series_getter
 
 FloatArray = NDArray[np.float64]
 
@@ -430,6 +430,49 @@ def estimate_x0(
 # -- sparse map -----------------------------------------------------------------------------------
 
 
+def sparse_map_recursion(
+    terms: Sequence[Term],
+    coefficients: FloatArray,
+    U: FloatArray,
+    X: FloatArray,
+    start: int,
+    inputs: Sequence[str],
+    states: Sequence[str],
+) -> None:
+    """Run ``x[k+1] = Ξᵀ Θ(k)`` in the compiled kernel, in place, from row ``start`` on.
+
+    The building block of sparse-map simulation for callers that hold their own histories
+    (the nonlinear MPC's rollout): ``U`` and ``X`` are buffers of equal length whose rows
+    before and at ``start`` are given (``Θ(k)`` reads ``U[k - lag]`` and ``X[k - lag]``);
+    rows ``start + 1`` to the end of ``X`` are written, NaN from the first that is not
+    finite.
+
+    Parameters
+    ----------
+    terms : sequence of Term
+        Θ over ``inputs`` and ``states`` (an input name wins over a state of that name).
+    coefficients : ndarray
+        Ξ, ``(len(terms), len(states))``.
+    U, X : ndarray
+        ``(n, len(inputs))`` and ``(n, len(states))``; ``X`` is written.
+    start : int
+        The first row whose successor is computed; rows ``0..start`` must cover every lag.
+    inputs, states : sequence of str
+        Column names of ``U`` and ``X``.
+    """
+    flat = _kernel.flatten(
+        terms, {n: j for j, n in enumerate(inputs)}, {n: j for j, n in enumerate(states)}
+    )
+    _kernel.run_terms(
+        _kernel.sparse_loop,
+        np.ascontiguousarray(U, dtype=float),
+        X,
+        np.ascontiguousarray(coefficients, dtype=float),
+        start,
+        flat=flat,
+    )
+
+
 def _sim_sparse(
     model: Model,
     rep: SparseMap,
@@ -501,6 +544,7 @@ __all__ = [
     "rate_limiter",
     "simulate",
     "simulate_dataset",
+    "sparse_map_recursion",
     "split_delay",
     "ss_response",
     "ss_theta_measured",

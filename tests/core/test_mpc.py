@@ -396,9 +396,17 @@ def test_sparse_map_dynamics_match_simulation_and_jacobians_are_exact():
     U = rng.uniform(-1, 1, size=(40, 2))
     x0 = 0.1
     y_sim = simulate(model, U, initial=np.array([x0]))[:, 0]
-    Z = dyn.rollout(dyn.initial_state(np.array([x0]), U[0]), U[:-1])
+    z0 = dyn.initial_state(np.array([x0]), U[0])
+    Z = dyn.rollout(z0, U[:-1])
     # simulate() pads the past with the first sample, as initial_state does.
     np.testing.assert_allclose(Z[:, 0], y_sim, atol=1e-12)
+    # the compiled rollout equals the step-by-step one, every part of the augmented state,
+    # also from a state whose histories differ from its current values
+    np.testing.assert_allclose(Z, dyn.rollout_reference(z0, U[:-1]), rtol=1e-12, atol=1e-14)
+    z1 = z0 + rng.normal(0, 0.1, z0.shape)
+    np.testing.assert_allclose(
+        dyn.rollout(z1, U[5:]), dyn.rollout_reference(z1, U[5:]), rtol=1e-12, atol=1e-14
+    )
     _F, A, B = dyn.linearize(Z[:-1], U[:-1])
     eps = 1e-6
     for j in (3, 17):

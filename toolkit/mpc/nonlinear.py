@@ -12,6 +12,7 @@ first-order map ``z+ = F(z, u)`` on the augmented state
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import numpy as np
@@ -19,7 +20,8 @@ from numpy.typing import NDArray
 
 from ..errors import OptionError
 from ..schema import Model, SparseMap
-from ..terms import CompiledTerms
+from ..simulate import sparse_map_recursion
+from ..terms import CompiledTerms, Term
 from .base import _MPC, _LinearizationError
 from .options import LEGACY, Bounds, Estimator, Solver, Weights, resolve_options
 from .qp import QPResult, TrackingQP
@@ -104,6 +106,18 @@ class SparseMapDynamics:
         self.C = np.zeros((len(rep.output_states), self.nz))
         self.C[np.arange(len(rep.output_states)), list(rep.output_states)] = 1.0
         self.x0 = np.zeros(nx) if rep.x0 is None else np.asarray(rep.x0, dtype=float)
+        # The compiled rollout reads inputs through their delays: a factor's lag grows by it.
+        self._names = (list(inputs), states)
+        self._delayed = tuple(
+            Term(
+                tuple(
+                    dataclasses.replace(f, lag=f.lag + delay[f.signal]) if f.signal in delay else f
+                    for f in t.factors
+                )
+            )
+            for t in rep.terms
+        )
+        self._coef = np.ascontiguousarray(rep.coefficients, dtype=float)
 
     def initial_state(self, x: FloatArray, u: FloatArray) -> FloatArray:
         """Augmented state with current state ``x``, the same past states and past inputs ``u``."""
@@ -116,7 +130,35 @@ class SparseMapDynamics:
         return np.concatenate([x_next, self._Sz @ z + self._Su @ u])
 
     def rollout(self, z0: FloatArray, U: FloatArray) -> FloatArray:
-        """States ``z_0..z_N`` (N+1, nz) driven by inputs ``U`` (N, nu) from ``z0``."""
+        """States ``z_0..z_N`` (N+1, nz) driven by inputs ``U`` (N, nu) from ``z0``.
+
+        Runs in the compiled kernel (:func:`tendonkit.simulate.sparse_map_recursion`, what
+        ``simulate`` runs): the state and input histories held in ``z0`` become the buffers'
+        first rows, the input delays the factors' lags.  :meth:`rollout_reference` is the
+        step-by-step numpy form it is tested against.
+        """
+        nx, nu, lx, lu = self.nx, self.nu, self.lx, self.lu
+        N = U.shape[0]
+        L = max(lx, lu, 1)
+        X = np.zeros((L + N + 1, nx))
+        Ub = np.zeros((L + N + 1, nu))
+        past_x = z0[: nx * (lx + 1)].reshape(lx + 1, nx)  # x_k, x_{k-1}, ..., x_{k-lx}
+        X[L - lx : L + 1] = past_x[::-1]
+        if lu:
+            past_u = z0[nx * (lx + 1) :].reshape(lu, nu)  # u_{k-1}, ..., u_{k-lu}
+            Ub[L - lu : L] = past_u[::-1]
+        Ub[L : L + N] = U
+        sparse_map_recursion(self._delayed, self._coef, Ub, X, L, *self._names)
+        Z = np.empty((N + 1, self.nz))
+        for i in range(lx + 1):
+            Z[:, i * nx : (i + 1) * nx] = X[L - i : L - i + N + 1]
+        base = nx * (lx + 1)
+        for i in range(lu):
+            Z[:, base + i * nu : base + (i + 1) * nu] = Ub[L - 1 - i : L - 1 - i + N + 1]
+        return Z
+
+    def rollout_reference(self, z0: FloatArray, U: FloatArray) -> FloatArray:
+        """:meth:`rollout` step by step with :meth:`step` (numpy)."""
         Z = np.empty((U.shape[0] + 1, self.nz))
         Z[0] = z0
         for j, u in enumerate(U):

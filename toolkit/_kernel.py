@@ -90,7 +90,7 @@ def flatten(
 # -- the kernels ---------------------------------------------------------------------------------
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _fn(code: int, z: float, power: float, param: float) -> float:  # pragma: no cover - numba
     if code == 0:
         if power == 1.0:
@@ -123,7 +123,7 @@ def _fn(code: int, z: float, power: float, param: float) -> float:  # pragma: no
     return m if m > 0.0 else 0.0
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _terms_at(  # pragma: no cover - numba
     a, b, kk, ptr, src, col, lag, diff, code, power, scale, offset, param, theta
 ):

@@ -417,6 +417,18 @@ static double fn(int code, double z, double power, double param) {
     case 0:
         if (power == 1.0) return z;
         if (power == 2.0) return z * z;
+        if (power == 3.0) return z * z * z;
+        if (power >= 4.0 && power <= 16.0 && power == floor(power)) {
+            /* small integer powers by squaring (within a few ulp of pow, much cheaper) */
+            int e = (int)power;
+            double b = z, acc = 1.0;
+            while (e) {
+                if (e & 1) acc *= b;
+                b *= b;
+                e >>= 1;
+            }
+            return acc;
+        }
         return pow(z, power);
     case 1: return sin(z);
     case 2: return cos(z);

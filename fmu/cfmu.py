@@ -325,10 +325,7 @@ def _compile(plat: str, out: Path, tmp: Path) -> str | None:
     common = ["-std=c99", "-O2", "-shared", "-s", *include]
     zig = _zig()
     cc = _system_cc() if plat == _host_platform() else None
-    env = dict(os.environ)
-    if zig is not None:
-        zcache = str(_cache_root() / "zig")
-        env.update(ZIG_GLOBAL_CACHE_DIR=zcache, ZIG_LOCAL_CACHE_DIR=zcache)
+    env = dict(os.environ)  # zig keeps its own cache (~/.cache/zig unless ZIG_GLOBAL_CACHE_DIR)
     if cc is not None and plat != "win64":
         cmd = [cc, *common, "-fPIC", "-o", str(out), *sources]
         cmd += ["-lm"] if plat == "linux64" else []

@@ -58,6 +58,7 @@ bottom, q_s at the top of its range).  docs/diagnose.md has the calibration tabl
 
 from __future__ import annotations
 
+import functools
 import time
 
 import numpy as np
@@ -129,6 +130,24 @@ def draw(effect: str, seed: int) -> dict:
     raise KeyError(effect)
 
 
+@functools.cache
+def circles(radii: tuple[float, ...], clockwise: bool = False, pretension: float | None = None):
+    """The circles protocol, one lap (computed once per worker: every effect uses it)."""
+    from tendonkit.robot.protocol import circles as make
+
+    kw = {} if pretension is None else {"pretension": pretension}
+    return make(laps=1, radii=list(radii), clockwise=clockwise, **kw)
+
+
+@functools.cache
+def pseudo_random(duration: float, seed: int, pretension_range: tuple | None = None):
+    """The pseudo-random protocol (computed once per worker and seed)."""
+    from tendonkit.robot.protocol import pseudo_random as make
+
+    kw = {} if pretension_range is None else {"pretension_range": pretension_range}
+    return make(duration=duration, seed=seed, **kw)
+
+
 def plant_data(
     params: dict, seed: int, commanded: bool, protocol: str = "standard"
 ) -> tuple[Dataset, Dataset]:
@@ -139,7 +158,6 @@ def plant_data(
     """
     from tendonkit.fmu._config import PlantConfig
     from tendonkit.fmu.plant import Plant
-    from tendonkit.robot.protocol import circles, pseudo_random
 
     cfg = PlantConfig(noise_on=True, seed=seed, **params)
     inputs = ("u1", "u2", "u3", "u4") if commanded else ("T1", "T2", "T3", "T4")
@@ -155,21 +173,18 @@ def plant_data(
         return Dataset(inputs=inputs, outputs=("q1", "q2"), experiments=tuple(exps), dt=0.03)
 
     slack = protocol == "slack"
-    circle_p = {"pretension": 50.0} if slack else {}
-    random_p = {"pretension_range": (40.0, 100.0)} if slack else {}
+    pretension = 50.0 if slack else None
+    span = (40.0, 100.0) if slack else None
     train = dataset(
         [
-            ("circles", circles(laps=1, radii=[0.02, 0.04, 0.06, 0.08, 0.10, 0.12], **circle_p)),
-            ("random", pseudo_random(duration=120, seed=seed, **random_p)),
+            ("circles", circles((0.02, 0.04, 0.06, 0.08, 0.10, 0.12), pretension=pretension)),
+            ("random", pseudo_random(120, seed, span)),
         ]
     )
     valid = dataset(
         [
-            ("random", pseudo_random(duration=360, seed=seed + 1000, **random_p)),
-            (
-                "circles",
-                circles(radii=[0.015, 0.065, 0.115], laps=1, clockwise=True, **circle_p),
-            ),
+            ("random", pseudo_random(360, seed + 1000, span)),
+            ("circles", circles((0.015, 0.065, 0.115), True, pretension)),
         ]
     )
     return train, valid

@@ -269,7 +269,7 @@ static double *get_state(instance *c, double *old) {
 }
 
 static int set_state(instance *c, const double *s) {
-    if (!s || s[0] != STATE_MAGIC || s[1] != c->m.ns) {
+    if (!s || s[0] != STATE_MAGIC || s[1] != c->m.ns || !tk_state_ok(&c->m, s + 3)) {
         logmsg(c, ST_ERROR, "FMU state not restored: it belongs to another model");
         return ST_ERROR;
     }
@@ -469,7 +469,7 @@ fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte bytes[], size
     s = (double *)malloc(size);
     if (!s) return fmi2Error;
     memcpy(s, bytes, size);
-    if (s[0] != STATE_MAGIC || s[1] != C2->m.ns) {
+    if (s[0] != STATE_MAGIC || s[1] != C2->m.ns || !tk_state_ok(&C2->m, s + 3)) {
         free(s);
         logmsg(C2, ST_ERROR, "serialized FMU state refused: it belongs to another model");
         return fmi2Error;
@@ -813,7 +813,7 @@ fmi3Status fmi3DeserializeFMUState(fmi3Instance instance_, const fmi3Byte serial
     s = (double *)malloc(size);
     if (!s) return fmi3Error;
     memcpy(s, serializedState, size);
-    if (s[0] != STATE_MAGIC || s[1] != C3->m.ns) {
+    if (s[0] != STATE_MAGIC || s[1] != C3->m.ns || !tk_state_ok(&C3->m, s + 3)) {
         free(s);
         logmsg(C3, ST_ERROR, "serialized FMU state refused: it belongs to another model");
         return fmi3Error;

@@ -292,6 +292,19 @@ void tk_free(tk_model *m) {
     memset(m, 0, sizeof(*m));
 }
 
+int tk_state_ok(const tk_model *m, const double *S) {
+    int k;
+    if (!(S[TK_HEAD] >= -1 && S[TK_HEAD] < m->H && S[TK_HEAD] == floor(S[TK_HEAD]))) return 0;
+    if (!(S[TK_COUNT] >= 0 && S[TK_COUNT] <= m->H)) return 0;
+    if (!(S[TK_TIME_INDEX] >= 0) || !(S[TK_DEAD] == 0.0 || S[TK_DEAD] == 1.0)) return 0;
+    for (k = 0; k < m->nbi + m->nbo; k++) {
+        const tk_block *b = k < m->nbi ? &m->bi[k] : &m->bo[k - m->nbi];
+        double head = S[b->off + 3];
+        if (b->kind == 0 && !(head >= 0 && head <= b->n && head == floor(head))) return 0;
+    }
+    return 1;
+}
+
 void tk_reset(tk_model *m) {
     int k;
     memset(m->S, 0, (size_t)m->ns * sizeof(double));
@@ -375,8 +388,10 @@ static void chain(tk_model *m, const tk_block *b, int nb, double *x, int commit)
 
 /* Row `back` samples before the newest (0: the newest) of a history of width w at offset o. */
 static double *hist(tk_model *m, int o, int w, int back) {
-    int head = (int)m->S[TK_HEAD];
-    int row = ((head - back) % m->H + m->H) % m->H;
+    /* 0 <= head < H and 0 <= back < H (every lag was checked against H at load): one
+     * conditional wrap instead of two integer divisions per read */
+    int row = (int)m->S[TK_HEAD] - back;
+    if (row < 0) row += m->H;
     return m->S + o + (size_t)row * w;
 }
 

@@ -77,6 +77,8 @@ int tk_load(tk_model *m, const char *path, char *why, size_t nwhy);
 void tk_free(tk_model *m);
 /* Back to the model's initial state, inputs at their start values, ratios at theirs. */
 void tk_reset(tk_model *m);
+/* Whether S (ns doubles) is a state this model can continue from (indices in range). */
+int tk_state_ok(const tk_model *m, const double *S);
 /* Outputs (nout) for the current state and inputs S[s_u..]; may mark the state diverged. */
 void tk_outputs(tk_model *m, double *out);
 /* Commit the current inputs and move one sample on; returns 0, or 1 once diverged. */

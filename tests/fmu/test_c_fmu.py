@@ -192,6 +192,14 @@ def test_fmu_state_get_set_serialize_and_reset(tmp_path, fmi, kind):
         fmu.setFMUState(fmu.deserializeFMUState(blob))
     again, _ = slave.run(model, u[40:], start=40)
     np.testing.assert_array_equal(again, first)
+    # a state whose history index points outside the buffers is refused, not followed
+    bad = bytearray(blob)
+    bad[48:56] = np.float64(1e6).tobytes()  # [magic, size, t, time index, dead, count, head]
+    with pytest.raises(FMICallException):
+        if fmi == 2:
+            fmu.setFMUstate(fmu.deSerializeFMUstate(bytes(bad)))
+        else:
+            fmu.setFMUState(fmu.deserializeFMUState(bytes(bad)))
     fmu.reset()
     if fmi == 2:
         fmu.setupExperiment(startTime=0.0)
@@ -329,6 +337,24 @@ def test_an_importer_can_rebuild_the_binary_from_the_sources(tmp_path, fmi):
     fmu.terminate()
     fmu.freeInstance()
     assert_close(np.array(rows), simulate(model, u, initial="model"))
+
+
+@pytest.mark.parametrize("damage", ["truncated", "foreign"])
+def test_a_damaged_model_resource_is_refused_at_instantiation(tmp_path, capfd, damage):
+    path = export(random_model(3, "sparse_map", 1.0), tmp_path, platforms=HOST)
+    folder = Path(extract(str(path)))
+    resource = folder / "resources" / cfmu.RESOURCE
+    data = resource.read_bytes()
+    if damage == "truncated":
+        resource.write_bytes(data[: len(data) // 16 * 8])  # whole numbers, half of them
+    else:  # a plausible header with counts far beyond the file
+        values = np.frombuffer(data, dtype="<f8").copy()
+        values[3] = 90_000.0  # number of inputs
+        resource.write_bytes(values.tobytes())
+    md = read_model_description(str(folder))
+    with pytest.raises(Exception, match="instantiate"):
+        instantiate_fmu(str(folder), md, fmi_type="CoSimulation")
+    assert "corrupt" in capfd.readouterr().out
 
 
 def test_export_falls_back_to_python_and_says_why(tmp_path, monkeypatch):

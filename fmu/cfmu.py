@@ -629,11 +629,13 @@ def _description3(model: Model, v: Variables, ident: str, description: str) -> b
                 attrib["unit"] = v.units[name]
             ET.SubElement(mvs, "Float64", attrib)
             vr[name] = len(vr)
+    taken = {*v.inputs, *v.outputs, *v.parameters}
+    clock = next(n for n in ("time", "time_", "tendonkit_time") if n not in taken)
     ET.SubElement(
         mvs,
         "Float64",
         {
-            "name": "time",
+            "name": clock,
             "valueReference": str(len(vr)),
             "causality": "independent",
             "variability": "continuous",

@@ -425,3 +425,51 @@ def test_an_fmu_that_logs_after_a_closed_plant_session_does_not_crash(tmp_path):
     )
     assert r.returncode == 0 and "ALIVE" in r.stdout, (r.returncode, r.stdout, r.stderr[-2000:])
     assert "REFUSED" in r.stdout and "communication step 123" in r.stdout
+
+
+def _edge_models() -> dict[str, Model]:
+    from tendonkit.schema import ARX, Block, Signal, StateSpace
+
+    one = np.array([[1.0]])
+    return {
+        # no state at all: a static gain
+        "static": Model(
+            "static gain",
+            0.1,
+            (Signal("u"),),
+            (Signal("y"),),
+            StateSpace(np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)), 2 * one),
+        ),
+        # an input named like FMI 3.0's independent variable, a long fractional delay,
+        # a name that is no C identifier
+        "time": Model(
+            "m-1",
+            0.1,
+            (Signal("time"),),
+            (Signal("y", "m"),),
+            StateSpace(0.5 * one, one, one, 0 * one),
+            input_blocks=(Block("delay", "time", {"samples": 40.5}),),
+        ),
+        # a pure FIR ARX with a different delay per input
+        "fir": Model(
+            "fir",
+            0.1,
+            (Signal("u1"), Signal("u2")),
+            (Signal("y1"), Signal("y2")),
+            ARX((), (np.ones((2, 2)), 0.5 * np.ones((2, 2))), (0, 3)),
+        ),
+    }
+
+
+@pytest.mark.parametrize("fmi", [2, 3])
+@pytest.mark.parametrize("case", ["static", "time", "fir"])
+def test_edge_models_export_validate_and_equal_simulate(tmp_path, case, fmi):
+    model = _edge_models()[case]
+    path = export(model, tmp_path, fmi, platforms=HOST)
+    assert validate_fmu(str(path)) == []
+    u = np.random.default_rng(0).normal(size=(100, len(model.inputs)))
+    slave = Slave(path)
+    got, failed = slave.run(model, u)
+    slave.close()
+    assert failed is None
+    assert_close(got, simulate(model, u, initial="model"))

@@ -53,6 +53,7 @@ def _sim_arx(
     y: FloatArray | None,
     initial: Initial,
     compiled: bool = True,
+    window: int | None = None,
 ) -> FloatArray:
     ny, nu = len(model.outputs), len(model.inputs)
     N = u.shape[0]
@@ -67,7 +68,7 @@ def _sim_arx(
     start = 0
     if isinstance(initial, str) and initial == "estimate":
         assert y is not None
-        start = min(L, N)
+        start = min(L, N, window or L)
         Y[L : L + start] = y[:start]
         U[:L] = u[0]  # inputs before the record: held at the first sample
         Y[:L] = y[0]

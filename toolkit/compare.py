@@ -26,21 +26,62 @@ RowExtras = Callable[[Model, Dataset, list[np.ndarray], str], dict[str, Any]]
 
 
 def score(
-    model: Model, data: Dataset, *, initial: str = "estimate", k: int | None = None
+    model: Model,
+    data: Dataset,
+    *,
+    initial: str = "estimate",
+    k: int | None = None,
+    init_window: int | None = None,
 ) -> tuple[dict[str, float], list[np.ndarray]]:
     """Fit per output of ``model`` on every experiment of ``data`` (concatenated for the score).
 
-    Returns the fits and the simulated (or k-step predicted) outputs per experiment.
+    With ``init_window`` (the benchmarks' official protocol) the initial state comes from the
+    first ``init_window`` samples of each experiment only, and the fit is computed on the
+    samples after them.  Returns the fits and the simulated (or k-step predicted) outputs per
+    experiment (whole experiments).
     """
+    fits, _, sims = _score(model, data, initial=initial, k=k, init_window=init_window)
+    return fits, sims
+
+
+def rmse(y: np.ndarray, y_hat: np.ndarray) -> np.ndarray:
+    """Root-mean-square error per output, in the outputs' unit."""
+    return np.sqrt(np.mean((np.asarray(y) - np.asarray(y_hat)) ** 2, axis=0))
+
+
+def _score(
+    model: Model,
+    data: Dataset,
+    *,
+    initial: str = "estimate",
+    k: int | None = None,
+    init_window: int | None = None,
+) -> tuple[dict[str, float], dict[str, float], list[np.ndarray]]:
     data = aligned(model, data)
     sims = []
     for e in data.experiments:
         if k is None:
-            sims.append(simulate(model, e.u, y=e.y, initial=initial))  # type: ignore[arg-type]
+            sims.append(
+                simulate(model, e.u, y=e.y, initial=initial, init_window=init_window)  # type: ignore[arg-type]
+            )
         else:
             sims.append(predict(model, e.u, e.y, k=k))
-    f = fit(data.y, np.vstack(sims))
-    return {n: float(v) for n, v in zip(model.output_names, f)}, sims
+    skip = init_window or 0
+    too_short = [e.name or str(i) for i, e in enumerate(data.experiments) if len(e.y) <= skip]
+    if too_short:
+        raise DataError(
+            f"init_window {skip} leaves no sample to score in experiment(s) {', '.join(too_short)}."
+        )
+    y = np.vstack([e.y[skip:] for e in data.experiments])
+    y_hat = np.vstack([s[skip:] for s in sims])
+    names = model.output_names
+    f = fit(y, y_hat)
+    r = rmse(y, y_hat)
+    return (
+        {n: float(v) for n, v in zip(names, f)},
+        {n: float(v) for n, v in zip(names, r)},
+        sims,
+    )
 
 
 def compare(
@@ -53,11 +94,14 @@ def compare(
     time: str = "t",
     plot_dir: str | Path | None = None,
     extras: RowExtras | None = None,
+    init_window: int | None = None,
 ) -> dict[str, Any]:
     """Score every model on the data; see the module docstring for the result's layout.
 
     ``plot_dir`` draws measured against simulated outputs (one PNG); ``extras`` adds entries to
     each model's row from its simulation (e.g. reconstructed joints, with figures of their own).
+    ``init_window`` applies the benchmarks' protocol (see :func:`score`); each row also has the
+    RMSE per output (``rmse``, in the output's unit) on the scored samples.
     """
     names = list(names) if names is not None else [m.name for m in models]
     rows: list[dict[str, Any]] = []
@@ -72,18 +116,23 @@ def compare(
         except DataError as exc:
             problems.append(f"model {name}: " + "; ".join(exc.problems or [str(exc)]))
             continue
-        fits, sims = score(model, data, initial=initial, k=k)
+        fits, errors, sims = _score(model, data, initial=initial, k=k, init_window=init_window)
         row: dict[str, Any] = {
             "model": str(name),
             "method": model.provenance.identifier or model.kind,
             "kind": model.kind,
             "fit": fits,
             "mean_fit": float(np.mean(list(fits.values()))),
+            "rmse": errors,
+            "units": {s.name: s.unit for s in model.outputs},
         }
         at = divergence(np.vstack(sims), aligned(model, data).y)
         if at is not None:
             # A diverged run has no fit: say where it left the data's range instead.
-            row.update(fit=dict.fromkeys(fits), mean_fit=None, diverged_at_sample=at)
+            row.update(
+                fit=dict.fromkeys(fits), mean_fit=None, rmse=dict.fromkeys(errors),
+                diverged_at_sample=at,
+            )  # fmt: skip
             rows.append(row)
             continue
         if extras is not None:
@@ -95,6 +144,7 @@ def compare(
     result: dict[str, Any] = {
         "mode": mode,
         "initial": initial if k is None else None,
+        "init_window": init_window,
         "models": rows,
     }
     if plot_dir is not None and models and len({tuple(m.output_names) for m in models}) == 1:
@@ -116,7 +166,24 @@ def render_compare(result: dict[str, Any]) -> str:
         for r in result["models"]
         if r.get("diverged_at_sample") is None
     ]
-    text = [f"Fit [%] ({result['mode']}), 100 (1 - |y - ŷ| / |y - mean y|):", fit_table(rows)]
+    window = result.get("init_window")
+    scored = f", initial state from the first {window} samples, scored after them" if window else ""
+    text = [
+        f"Fit [%] ({result['mode']}{scored}), 100 (1 - |y - ŷ| / |y - mean y|):",
+        fit_table(rows),
+    ]
+    scored_rows = [r for r in result["models"] if r.get("rmse") and None not in r["rmse"].values()]
+    if scored_rows:
+        text.append("RMSE (output units):")
+        for r in scored_rows:
+            units = r.get("units", {})
+            text.append(
+                f"  {r['model']}: "
+                + ", ".join(
+                    f"{n} {_g(v)}{(' ' + units[n]) if units.get(n) else ''}"
+                    for n, v in r["rmse"].items()
+                )
+            )
     text += [
         f"{r['model']}: diverged at sample {r['diverged_at_sample']} (its outputs left 10^6 "
         "times the data's range) — no fit"
@@ -132,6 +199,10 @@ def render_compare(result: dict[str, Any]) -> str:
             parts.append(f"mean end-effector error {r['ee_error_cm']:.2f} cm")
         text.append(f"{r['model']}: " + "; ".join(parts))
     return "\n".join(text)
+
+
+def _g(v: float) -> str:
+    return f"{v:.4g}"
 
 
 def plot_compare(

@@ -74,6 +74,13 @@ def add_commands(sub: Any) -> None:
     p.add_argument("--json", help="write the results as JSON here")
     p.add_argument("--initial", default="estimate", choices=["zero", "model", "estimate"])
     p.add_argument("--k", type=int, help="score k-step-ahead prediction instead of free run")
+    p.add_argument(
+        "--init-window",
+        type=int,
+        metavar="N",
+        help="benchmark protocol: the initial state from the first N samples of each "
+        "experiment only (with --initial estimate), fit and RMSE on the samples after them",
+    )
     p.add_argument("--joints", action="store_true", help="also reconstruct q3..q6 and score them")
     p.add_argument("--ee", action="store_true", help="also score the end-effector error (cm)")
     p.add_argument("--plot", help="write figures (PNG) into this folder")
@@ -237,6 +244,13 @@ def cmd_compare(args: argparse.Namespace) -> int:
     models = [m for m in loaded if m is not None]
     if args.k is not None and args.k < 1:
         problems.append(f"--k must be >= 1, found {args.k}.")
+    if args.init_window is not None:
+        if args.init_window < 1:
+            problems.append(f"--init-window must be >= 1, found {args.init_window}.")
+        if args.k is not None:
+            problems.append("--init-window applies to free-run simulation, not to --k.")
+        if args.initial != "estimate":
+            problems.append("--init-window needs --initial estimate (the state is estimated).")
     if args.json:
         check_output_path(args.json, args.files, problems, what="--json")
     if args.plot:
@@ -253,6 +267,12 @@ def cmd_compare(args: argparse.Namespace) -> int:
     shortest = min((d.n_samples for d in datasets.values()), default=None)
     if args.k is not None and shortest is not None and args.k > shortest:
         problems.append(f"--k must be at most the number of samples ({shortest}), found {args.k}.")
+    short = min((len(e.y) for d in datasets.values() for e in d.experiments), default=None)
+    if args.init_window and short is not None and args.init_window >= short:
+        problems.append(
+            f"--init-window {args.init_window} leaves nothing to score: the shortest experiment "
+            f"has {short} samples."
+        )
     raise_problems(problems, "tendonkit compare cannot run:")
     # The robot's joints: asked for with --joints/--ee; drawn with --plot when every model has
     # the base joints q1, q2 (other models get the measured-vs-simulated figure only).
@@ -270,6 +290,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
             initial=args.initial,
             k=args.k,
             time=args.time,
+            init_window=args.init_window,
             plot_dir=args.plot,
             extras=extras,
         )

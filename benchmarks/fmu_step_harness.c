@@ -76,7 +76,11 @@ int main(int argc, char **argv) {
             for (i = 0; i < nin; i++) uin[i] = 100.0 + 5.0 * ((k / 7 + i) % 5);
             fmi2SetReal(c, vin, nin, uin);
             t1 = now();
-            if (fmi2DoStep(c, t, h, fmi2True) != fmi2OK) return 1;
+            if (fmi2DoStep(c, t, h, fmi2True) != fmi2OK) {
+                fmi2Terminate(c);
+                fmi2FreeInstance(c);
+                return 1;
+            }
             t2 = now();
             t_step += t2 - t1;
             fmi2GetReal(c, vout, nout, yout);

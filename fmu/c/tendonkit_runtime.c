@@ -60,6 +60,7 @@ static int load_blocks(reader *r, tk_block *b, int nb, int nsig) {
 }
 
 #define LIMIT 100000 /* bound on every count and lag read from a resource */
+#define MAX_VALUES 5e7 /* bound on the numbers a model and its state hold (400 MB) */
 
 int tk_load(tk_model *m, const char *path, char *why, size_t nwhy) {
     FILE *f;
@@ -124,13 +125,17 @@ int tk_load(tk_model *m, const char *path, char *why, size_t nwhy) {
 
     /* sizes first: one allocation holds every array */
     pos = r.i + (size_t)m->nu; /* u0 */
-    if (pos >= r.n) goto bad;
+    if (pos >= r.n || !(raw[pos] >= 0 && raw[pos] <= LIMIT)) goto bad;
     m->nbi = (int)raw[pos];
-    if (m->nbi < 0 || m->nbi > LIMIT) goto bad;
     pos += 1 + 4 * (size_t)m->nbi;
-    if (pos >= r.n) goto bad;
+    if (pos >= r.n || !(raw[pos] >= 0 && raw[pos] <= LIMIT)) goto bad;
     m->nbo = (int)raw[pos];
-    if (m->nbo < 0 || m->nbo > LIMIT) goto bad;
+    /* every array below must be far from int and memory limits: a resource asking for more
+     * is corrupt (this also keeps the int offsets of the state layout from overflowing) */
+    if ((double)m->H * (m->nu + m->ny + m->nx) + (double)m->nx * (m->nx + m->nu + m->nt) +
+            (double)m->ny * (m->nx + m->nu) + 9.0 * m->nf + (double)m->nt * (m->ny + 1) >
+        MAX_VALUES)
+        goto bad;
 
     need = (size_t)m->nu                       /* u0 */
            + (size_t)m->nx * m->nx + (size_t)m->nx * m->nu + (size_t)m->ny * m->nx
@@ -257,6 +262,18 @@ int tk_load(tk_model *m, const char *path, char *why, size_t nwhy) {
     m->s_xh = i; i += m->H * m->nx;
     m->s_blk = i;
     nbi_state = 0;
+    {
+        double total = 0.0; /* the blocks' state, checked before any int offset is formed */
+        for (k = 0; k < m->nbi + m->nbo; k++) {
+            blocks = k < m->nbi ? &m->bi[k] : &m->bo[k - m->nbi];
+            total += 4.0 + (blocks->kind == 0 ? blocks->n + 1.0 : 0.0);
+        }
+        if (total + i > MAX_VALUES) {
+            tk_free(m);
+            TK_SNPRINTF(why, nwhy, "the model resource %s asks for too much state", path);
+            return 1;
+        }
+    }
     for (k = 0; k < m->nbi + m->nbo; k++) {
         blocks = k < m->nbi ? &m->bi[k] : &m->bo[k - m->nbi];
         blocks->off = i + nbi_state;

@@ -1,0 +1,184 @@
+"""tendonkit's linear models on six real benchmarks, official splits, default options (issue 17).
+
+Run from the repository root, one BLAS thread (the README gives the command and results)::
+
+    OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 python benchmarks/bench_real.py --out r.json
+
+Each dataset (../shared/data/real, splits and initialisation windows from its README) is
+identified with ``n4sid`` and ``arx`` at their **default options** — nothing is set per
+dataset except the split and the window — and scored in free-run simulation on the test
+record(s): the initial state from the first ``init`` test samples
+(``simulate(..., init_window=init)``), the RMSE on the samples after them, in the benchmark's
+unit.  Bouc–Wen's protocol simulates the whole test record from the input alone
+(``initial="zero"``).  The published best linear and nonlinear results are printed beside.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+import tendonkit as tk
+from tendonkit.dataset import Dataset, Experiment
+from tendonkit.simulate import simulate
+
+REAL = Path(os.environ.get("TENDONKIT_SHARED", Path(__file__).resolve().parents[2] / "shared"))
+REAL = REAL / "data" / "real"
+
+#: dataset -> (published best linear, published best nonlinear, unit label, unit factor)
+PUBLISHED: dict[str, tuple[str, str, str, float]] = {
+    "EMPS": ("5.53 (SS); ARX 12.6", "2.64 (dynoNet)", "mm", 1e3),
+    "Silverbox multisine": ("6.95", "0.30 (GP-NARX)", "mV", 1e3),
+    "Wiener-Hammerstein": ("43.4", "0.24 (SUBNET)", "mV", 1e3),
+    "Cascaded tanks": ("0.588 (SS)", "0.34 (NLSS2)", "V", 1.0),
+    "CED low": ("0.224", "0.096", "(z)", 1.0),
+    "CED high": ("0.331", "0.074", "(z)", 1.0),
+    "Bouc-Wen multisine": ("ARX(8,8) 1.5e-4", "1.9e-5 (PNLSS)", "m", 1.0),
+}
+
+
+def _slice(data: Dataset, start: int, stop: int, name: str) -> Dataset:
+    e = data.experiments[0]
+    s = slice(start, stop)
+    return data.with_experiments([Experiment(t=e.t[s] - e.t[start], u=e.u[s], y=e.y[s], name=name)])
+
+
+def cases() -> list[tuple[str, Dataset, list[tuple[str, Dataset, int | None]]]]:
+    """``(dataset, train, [(test name, test, init window or None for a zero start)])``."""
+    out = []
+    emps = REAL / "emps"
+    out.append(
+        (
+            "EMPS",
+            Dataset.from_csv(emps / "emps_train.csv", ["u_vir"], ["y_qm"]),
+            [("EMPS", Dataset.from_csv(emps / "emps_test.csv", ["u_vir"], ["y_qm"]), 20)],
+        )
+    )
+    sb = Dataset.from_csv(REAL / "silverbox" / "silverbox_SNLS80mV.csv", ["u"], ["y"])
+    out.append(
+        (
+            "Silverbox",
+            _slice(sb, 40650, 105712, "train"),
+            [("Silverbox multisine", _slice(sb, 105712, 127400, "test"), 50)],
+        )
+    )
+    wh = Dataset.from_csv(REAL / "wiener_hammerstein" / "wh2009_full.csv", ["u"], ["y"])
+    out.append(
+        (
+            "Wiener-Hammerstein",
+            _slice(wh, 5200, 105200, "train"),
+            [("Wiener-Hammerstein", _slice(wh, 105200, 184000, "test"), 50)],
+        )
+    )
+    tanks = REAL / "cascaded_tanks"
+    out.append(
+        (
+            "Cascaded tanks",
+            Dataset.from_csv(tanks / "cascaded_tanks_train.csv", ["u"], ["y"]),
+            [
+                (
+                    "Cascaded tanks",
+                    Dataset.from_csv(tanks / "cascaded_tanks_test.csv", ["u"], ["y"]),
+                    50,
+                )
+            ],
+        )
+    )
+    ced = {
+        k: Dataset.from_csv(REAL / "coupled_electric_drives" / "ced_unif.csv", [u], [z])
+        for k, (u, z) in {"low": ("u11", "z11"), "high": ("u12", "z12")}.items()
+    }
+
+    def renamed(d: Dataset, start: int, stop: int, name: str) -> Experiment:
+        e = d.experiments[0]
+        return Experiment(
+            t=e.t[start:stop] - e.t[start], u=e.u[start:stop], y=e.y[start:stop], name=name
+        )
+
+    train = Dataset(
+        inputs=("u",), outputs=("z",), dt=ced["low"].dt,
+        experiments=(renamed(ced["low"], 0, 400, "low"), renamed(ced["high"], 0, 400, "high")),
+    )  # fmt: skip
+    tests = [
+        (
+            f"CED {k}",
+            Dataset(inputs=("u",), outputs=("z",), dt=d.dt, experiments=(renamed(d, 400, 500, k),)),
+            10,
+        )
+        for k, d in ced.items()
+    ]
+    out.append(("Coupled electric drives", train, tests))
+    bw = REAL / "bouc_wen"
+    out.append(
+        (
+            "Bouc-Wen",
+            Dataset.from_csv(bw / "boucwen_train_multisine_generated.csv", ["u"], ["y"]),
+            [
+                (
+                    "Bouc-Wen multisine",
+                    Dataset.from_csv(bw / "boucwen_test_multisine.csv", ["u"], ["y"]),
+                    None,
+                )
+            ],
+        )
+    )
+    return out
+
+
+def rmse(model: tk.schema.Model, test: Dataset, init: int | None) -> float:
+    errors = []
+    for e in test.experiments:
+        if init is None:
+            sim = simulate(model, e.u, initial="zero")
+            errors.append(e.y - sim)
+        else:
+            sim = simulate(model, e.u, y=e.y, initial="estimate", init_window=init)
+            errors.append(e.y[init:] - sim[init:])
+    err = np.vstack(errors)
+    return float(np.sqrt(np.mean(err**2)))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--out", default=None, help="JSON file for the results")
+    parser.add_argument("--methods", default="n4sid,arx", help="identifiers, comma separated")
+    args = parser.parse_args()
+    methods = args.methods.split(",")
+    load = os.getloadavg()[0]
+    rows: list[dict[str, Any]] = []
+    for _dataset, train, tests in cases():
+        for method in methods:
+            t0 = time.perf_counter()
+            try:
+                model = tk.identify(train, method)
+                error = None
+            except tk.errors.TendonkitError as exc:
+                model, error = None, str(exc)
+            seconds = time.perf_counter() - t0
+            for name, test, init in tests:
+                linear, nonlinear, unit, factor = PUBLISHED[name]
+                value = rmse(model, test, init) * factor if model is not None else None
+                row = {
+                    "test": name, "method": method, "rmse": value, "unit": unit,
+                    "init_window": init, "identify_s": seconds, "error": error,
+                    "published_linear": linear, "published_nonlinear": nonlinear,
+                }  # fmt: skip
+                rows.append(row)
+                shown = f"{value:.4g}" if value is not None else f"failed: {error}"
+                print(
+                    f"{name:22s} {method:6s} RMSE {shown} {unit} (published linear {linear}, "
+                    f"nonlinear {nonlinear}); identify {seconds:.1f} s"
+                )
+    if args.out:
+        machine = {"load_before": load, "load_after": os.getloadavg()[0]}
+        Path(args.out).write_text(json.dumps({"rows": rows, "machine": machine}, indent=1))
+
+
+if __name__ == "__main__":
+    main()

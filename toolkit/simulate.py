@@ -430,6 +430,18 @@ def _sim_ss_terms(
     return Y[L:]
 
 
+def state_space_response(
+    A: FloatArray, B: FloatArray, C: FloatArray, D: FloatArray, u: FloatArray, x0: FloatArray
+) -> FloatArray:
+    """Outputs of ``x+ = A x + B u``, ``y = C x + D u`` from ``x0`` (block-recursive, compiled).
+
+    The linear core of :func:`simulate` for callers that iterate on the matrices themselves
+    (an output-error refinement simulates thousands of candidates): no model object, no
+    checks.  ``u`` is ``(n, nu)``; returns ``(n, ny)``.
+    """
+    return ss_response(A, B, C, D, u, x0)
+
+
 def estimate_x0(
     rep: StateSpace, u: FloatArray, y: FloatArray, window: int | None = None
 ) -> FloatArray:
@@ -568,4 +580,5 @@ __all__ = [
     "split_delay",
     "ss_response",
     "ss_theta_measured",
+    "state_space_response",
 ]

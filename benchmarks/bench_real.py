@@ -43,10 +43,15 @@ PUBLISHED: dict[str, tuple[str, str, str, float]] = {
 }
 
 
-def _slice(data: Dataset, start: int, stop: int, name: str) -> Dataset:
+def _part(data: Dataset, start: int, stop: int, name: str) -> Experiment:
+    """Samples ``start:stop`` of ``data``'s one experiment, time from zero."""
     e = data.experiments[0]
     s = slice(start, stop)
-    return data.with_experiments([Experiment(t=e.t[s] - e.t[start], u=e.u[s], y=e.y[s], name=name)])
+    return Experiment(t=e.t[s] - e.t[start], u=e.u[s], y=e.y[s], name=name)
+
+
+def _slice(data: Dataset, start: int, stop: int, name: str) -> Dataset:
+    return data.with_experiments([_part(data, start, stop, name)])
 
 
 def cases() -> list[tuple[str, Dataset, list[tuple[str, Dataset, int | None]]]]:
@@ -95,7 +100,7 @@ def cases() -> list[tuple[str, Dataset, list[tuple[str, Dataset, int | None]]]]:
         for k, (u, z) in {"low": ("u11", "z11"), "high": ("u12", "z12")}.items()
     }
 
-    def renamed(d: Dataset, start: int, stop: int, name: str) -> Experiment:
+    def _part(d: Dataset, start: int, stop: int, name: str) -> Experiment:
         e = d.experiments[0]
         return Experiment(
             t=e.t[start:stop] - e.t[start], u=e.u[start:stop], y=e.y[start:stop], name=name
@@ -103,12 +108,12 @@ def cases() -> list[tuple[str, Dataset, list[tuple[str, Dataset, int | None]]]]:
 
     train = Dataset(
         inputs=("u",), outputs=("z",), dt=ced["low"].dt,
-        experiments=(renamed(ced["low"], 0, 400, "low"), renamed(ced["high"], 0, 400, "high")),
+        experiments=(_part(ced["low"], 0, 400, "low"), _part(ced["high"], 0, 400, "high")),
     )  # fmt: skip
     tests = [
         (
             f"CED {k}",
-            Dataset(inputs=("u",), outputs=("z",), dt=d.dt, experiments=(renamed(d, 400, 500, k),)),
+            Dataset(inputs=("u",), outputs=("z",), dt=d.dt, experiments=(_part(d, 400, 500, k),)),
             10,
         )
         for k, d in ced.items()

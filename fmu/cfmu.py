@@ -22,6 +22,7 @@ from __future__ import annotations
 import contextlib
 import datetime
 import fcntl
+import functools
 import hashlib
 import importlib.util
 import os
@@ -45,7 +46,8 @@ from tendonkit.errors import FMUError
 from tendonkit.realize import arx_lag_matrices
 from tendonkit.robot import RobotParameters
 from tendonkit.schema import ARX, Block, Model, SparseMap, StateSpace
-from tendonkit.simulate import arx_max_lag, split_delay
+from tendonkit.simulate import split_delay
+from tendonkit.stepper import history_length
 from tendonkit.terms import FUNCTIONS, Term
 
 __all__ = [
@@ -108,7 +110,7 @@ def c_problems(model: Model) -> list[str]:
     """
     problems = []
     rep = model.representation
-    unknown = sorted({f.fn for t in _terms(rep) for f in t.factors} - set(C_FUNCTIONS))
+    unknown = sorted({f.fn for t in rep.terms for f in t.factors} - set(C_FUNCTIONS))
     if unknown:
         problems.append(f"factor functions {', '.join(unknown)} have no C form")
     kinds = sorted(
@@ -116,27 +118,13 @@ def c_problems(model: Model) -> list[str]:
     )
     if kinds:
         problems.append(f"blocks {', '.join(kinds)} have no C form")
-    if _history(model) > _LIMIT:
+    if history_length(model) > _LIMIT:
         problems.append(f"the model reads more than {_LIMIT} samples back")
     if isinstance(rep, ARX):
         outs = set(model.output_names)
         if any(f.signal in outs and f.lag < 1 for t in rep.terms for f in t.factors):
             problems.append("an ARX term reads an output at lag 0 (an algebraic loop)")
     return problems
-
-
-def _terms(rep: StateSpace | ARX | SparseMap) -> tuple[Term, ...]:
-    return rep.terms if rep.terms else ()
-
-
-def _history(model: Model) -> int:
-    """How many past samples the stepper pads its histories with (``Stepper._lag``)."""
-    rep = model.representation
-    if isinstance(rep, StateSpace):
-        return max((t.max_lag for t in rep.terms), default=1) if rep.terms else 0
-    if isinstance(rep, ARX):
-        return arx_max_lag(rep, len(model.inputs))
-    return max((t.max_lag for t in rep.terms), default=0) + 1
 
 
 def _blocks(blocks: Sequence[Block], names: Sequence[str]) -> list[float]:
@@ -204,7 +192,7 @@ def model_resource(
     """
     rep = model.representation
     nu, ny = len(model.inputs), len(model.outputs)
-    terms = _terms(rep)
+    terms = rep.terms
     ptr, rows, nf = _factors(model, terms)
     nx = rep.n_states if isinstance(rep, StateSpace | SparseMap) else 0
     outs = list(model.output_names)
@@ -219,7 +207,7 @@ def model_resource(
         len(terms),
         nf,
         float(model.dt),
-        _history(model),
+        history_length(model),
         float(kinematics),
         *iq,
         *[float(r) for r in ratios],
@@ -296,6 +284,7 @@ def _system_cc() -> str | None:
     return None
 
 
+@functools.cache
 def _source_digest() -> str:
     digest = hashlib.sha256()
     for name in (*SOURCES, *HEADERS):
@@ -517,6 +506,38 @@ def _xml(root: ET.Element) -> bytes:
     return ET.tostring(root, encoding="UTF-8", xml_declaration=True)
 
 
+def _variables(v: Variables) -> Iterator[tuple[str, str, dict[str, str]]]:
+    """``(name, causality, attributes)`` of every variable in value-reference order."""
+    vr = 0
+    for names, causality in (
+        (v.inputs, "input"),
+        (v.outputs, "output"),
+        (v.parameters, "parameter"),
+    ):
+        for name in names:
+            yield (
+                name,
+                causality,
+                {
+                    "name": name,
+                    "valueReference": str(vr),
+                    "description": v.descriptions.get(name, ""),
+                    "causality": causality,
+                    "variability": "tunable" if causality == "parameter" else "continuous",
+                },
+            )
+            vr += 1
+
+
+def _start_and_unit(v: Variables, name: str) -> dict[str, str]:
+    out = {}
+    if name in v.start:
+        out["start"] = repr(float(v.start[name]))
+    if v.units.get(name):
+        out["unit"] = v.units[name]
+    return out
+
+
 def _description2(model: Model, v: Variables, ident: str, description: str) -> bytes:
     root = _root(2, model, ident, description)
     cs = ET.SubElement(
@@ -543,31 +564,14 @@ def _description2(model: Model, v: Variables, ident: str, description: str) -> b
     _experiment(root, model)
     mvs = ET.SubElement(root, "ModelVariables")
     index: dict[str, int] = {}
-    for names, causality in (
-        (v.inputs, "input"),
-        (v.outputs, "output"),
-        (v.parameters, "parameter"),
-    ):
-        for name in names:
-            attrib = {
-                "name": name,
-                "valueReference": str(len(index)),
-                "description": v.descriptions.get(name, ""),
-                "causality": causality,
-                "variability": "tunable" if causality == "parameter" else "continuous",
-            }
-            if causality == "output":
-                attrib["initial"] = "calculated"
-            elif causality == "parameter":
-                attrib["initial"] = "exact"
-            sv = ET.SubElement(mvs, "ScalarVariable", attrib)
-            real: dict[str, str] = {}
-            if name in v.start:
-                real["start"] = repr(float(v.start[name]))
-            if v.units.get(name):
-                real["unit"] = v.units[name]
-            ET.SubElement(sv, "Real", real)
-            index[name] = len(index)
+    for name, causality, attrib in _variables(v):
+        if causality == "output":
+            attrib["initial"] = "calculated"
+        elif causality == "parameter":
+            attrib["initial"] = "exact"
+        sv = ET.SubElement(mvs, "ScalarVariable", attrib)
+        ET.SubElement(sv, "Real", _start_and_unit(v, name))
+        index[name] = len(index)
     structure = ET.SubElement(root, "ModelStructure")
     outs = ET.SubElement(structure, "Outputs")
     for name in v.outputs:
@@ -610,25 +614,9 @@ def _description3(model: Model, v: Variables, ident: str, description: str) -> b
     _experiment(root, model)
     mvs = ET.SubElement(root, "ModelVariables")
     vr: dict[str, int] = {}
-    for names, causality in (
-        (v.inputs, "input"),
-        (v.outputs, "output"),
-        (v.parameters, "parameter"),
-    ):
-        for name in names:
-            attrib = {
-                "name": name,
-                "valueReference": str(len(vr)),
-                "description": v.descriptions.get(name, ""),
-                "causality": causality,
-                "variability": "tunable" if causality == "parameter" else "continuous",
-            }
-            if name in v.start:
-                attrib["start"] = repr(float(v.start[name]))
-            if v.units.get(name):
-                attrib["unit"] = v.units[name]
-            ET.SubElement(mvs, "Float64", attrib)
-            vr[name] = len(vr)
+    for name, _, attrib in _variables(v):
+        ET.SubElement(mvs, "Float64", {**attrib, **_start_and_unit(v, name)})
+        vr[name] = len(vr)
     taken = {*v.inputs, *v.outputs, *v.parameters}
     clock = next(n for n in ("time", "time_", "tendonkit_time") if n not in taken)
     ET.SubElement(

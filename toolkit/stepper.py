@@ -44,7 +44,7 @@ from .schema import ARX, Block, Model, SparseMap, StateSpace
 from .simulate import arx_max_lag, split_delay
 from .terms import CompiledTerms, scalar_evaluator
 
-__all__ = ["Stepper", "feedthrough"]
+__all__ = ["Stepper", "feedthrough", "history_length"]
 
 FloatArray = NDArray[np.float64]
 
@@ -154,13 +154,12 @@ class Stepper:
         self.nu, self.ny = len(model.inputs), len(model.outputs)
         rep = model.representation
         self._rep = rep
+        self._lag = history_length(model)
         if isinstance(rep, StateSpace) and rep.terms:
             assert rep.E is not None
             self._ct = CompiledTerms(rep.terms)
-            self._lag = max((t.max_lag for t in rep.terms), default=1)
         elif isinstance(rep, ARX):
             self._G = arx_lag_matrices(rep, self.nu) if rep.B else [np.zeros((self.ny, self.nu))]
-            self._lag = arx_max_lag(rep, self.nu)
             self._acat = np.hstack(rep.A) if rep.A else np.zeros((self.ny, 0))
             self._off = np.zeros(self.ny) if rep.offset is None else rep.offset
             coef = rep.term_coefficients
@@ -172,7 +171,6 @@ class Stepper:
                 self._coef_t = coef.T.copy()
         elif isinstance(rep, SparseMap):
             self._ct = CompiledTerms(rep.terms)
-            self._lag = max((t.max_lag for t in rep.terms), default=0) + 1
             self._states = [s.name for s in model.states]
         self.reset()
 
@@ -332,7 +330,7 @@ class Stepper:
         """Before the first sample: pad the histories as :func:`simulate` does."""
         if self.time_index or self._u_hist:
             return
-        rep, lag = self._rep, getattr(self, "_lag", 0)
+        rep, lag = self._rep, self._lag
         if isinstance(rep, ARX):
             pad_u, pad_y = np.zeros(self.nu), np.zeros(self.ny)
         else:
@@ -405,10 +403,25 @@ class Stepper:
         return float(source[-1 - lag][j])
 
     def _trim(self) -> None:
-        keep = getattr(self, "_lag", 0) + 1
+        keep = self._lag + 1
         for hist in (self._u_hist, self._y_hist, self._x_hist):
             while len(hist) > keep:
                 hist.popleft()
+
+
+def history_length(model: Model) -> int:
+    """Samples of history the stepper pads before the first one (0: none kept).
+
+    State space: the oldest sample its terms read (none without terms); ARX: its largest
+    lag (:func:`tendonkit.simulate.arx_max_lag`); sparse map: the oldest sample its terms read,
+    plus one.  The C runtime of model FMUs sizes its ring buffers with it.
+    """
+    rep = model.representation
+    if isinstance(rep, StateSpace):
+        return max((t.max_lag for t in rep.terms), default=1) if rep.terms else 0
+    if isinstance(rep, ARX):
+        return arx_max_lag(rep, len(model.inputs))
+    return max((t.max_lag for t in rep.terms), default=0) + 1
 
 
 def _chain_passes(blocks: Sequence[Block], signal: str, initial: bool) -> bool:

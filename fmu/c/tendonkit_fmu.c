@@ -268,8 +268,13 @@ static double *get_state(instance *c, double *old) {
     return s;
 }
 
+/* Whether s is a state of this model that it can continue from. */
+static int state_valid(const instance *c, const double *s) {
+    return s && s[0] == STATE_MAGIC && s[1] == c->m.ns && tk_state_ok(&c->m, s + 3);
+}
+
 static int set_state(instance *c, const double *s) {
-    if (!s || s[0] != STATE_MAGIC || s[1] != c->m.ns || !tk_state_ok(&c->m, s + 3)) {
+    if (!state_valid(c, s)) {
         logmsg(c, ST_ERROR, "FMU state not restored: it belongs to another model");
         return ST_ERROR;
     }
@@ -280,6 +285,32 @@ static int set_state(instance *c, const double *s) {
 }
 
 static size_t state_bytes(const instance *c) { return ((size_t)c->m.ns + 3) * sizeof(double); }
+
+static int serialize(instance *c, const double *state, void *bytes, size_t size) {
+    if (!state || size < state_bytes(c)) return ST_ERROR;
+    memcpy(bytes, state, state_bytes(c));
+    return ST_OK;
+}
+
+/* A new FMU state from serialised bytes, or an error (logged) if they are not this model's. */
+static int deserialize(instance *c, const void *bytes, size_t size, double **state) {
+    double *s;
+    if (size != state_bytes(c)) {
+        logmsg(c, ST_ERROR, "serialized FMU state of %lu bytes refused: this model's has %lu",
+               (unsigned long)size, (unsigned long)state_bytes(c));
+        return ST_ERROR;
+    }
+    s = (double *)malloc(size);
+    if (!s) return ST_ERROR;
+    memcpy(s, bytes, size);
+    if (!state_valid(c, s)) {
+        free(s);
+        logmsg(c, ST_ERROR, "serialized FMU state refused: it belongs to another model");
+        return ST_ERROR;
+    }
+    *state = s;
+    return ST_OK;
+}
 
 static void reset(instance *c) {
     tk_reset(&c->m);
@@ -452,28 +483,15 @@ fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate state, size_
 
 fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate state, fmi2Byte bytes[],
                                  size_t size) {
-    if (!c || !state || size < state_bytes(C2)) return fmi2Error;
-    memcpy(bytes, state, state_bytes(C2));
-    return fmi2OK;
+    if (!c) return fmi2Error;
+    return (fmi2Status)serialize(C2, (const double *)state, bytes, size);
 }
 
 fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte bytes[], size_t size,
                                    fmi2FMUstate *state) {
     double *s;
     if (!c || !state) return fmi2Error;
-    if (size != state_bytes(C2)) {
-        logmsg(C2, ST_ERROR, "serialized FMU state of %lu bytes refused: this model's has %lu",
-               (unsigned long)size, (unsigned long)state_bytes(C2));
-        return fmi2Error;
-    }
-    s = (double *)malloc(size);
-    if (!s) return fmi2Error;
-    memcpy(s, bytes, size);
-    if (s[0] != STATE_MAGIC || s[1] != C2->m.ns || !tk_state_ok(&C2->m, s + 3)) {
-        free(s);
-        logmsg(C2, ST_ERROR, "serialized FMU state refused: it belongs to another model");
-        return fmi2Error;
-    }
+    if (deserialize(C2, bytes, size, &s) != ST_OK) return fmi2Error;
     free(*state);
     *state = s;
     return fmi2OK;
@@ -796,28 +814,15 @@ fmi3Status fmi3SerializedFMUStateSize(fmi3Instance instance_, fmi3FMUState state
 
 fmi3Status fmi3SerializeFMUState(fmi3Instance instance_, fmi3FMUState state,
                                  fmi3Byte serializedState[], size_t size) {
-    if (!instance_ || !state || size < state_bytes(C3)) return fmi3Error;
-    memcpy(serializedState, state, state_bytes(C3));
-    return fmi3OK;
+    if (!instance_) return fmi3Error;
+    return (fmi3Status)serialize(C3, (const double *)state, serializedState, size);
 }
 
 fmi3Status fmi3DeserializeFMUState(fmi3Instance instance_, const fmi3Byte serializedState[],
                                    size_t size, fmi3FMUState *state) {
     double *s;
     if (!instance_ || !state) return fmi3Error;
-    if (size != state_bytes(C3)) {
-        logmsg(C3, ST_ERROR, "serialized FMU state of %lu bytes refused: this model's has %lu",
-               (unsigned long)size, (unsigned long)state_bytes(C3));
-        return fmi3Error;
-    }
-    s = (double *)malloc(size);
-    if (!s) return fmi3Error;
-    memcpy(s, serializedState, size);
-    if (s[0] != STATE_MAGIC || s[1] != C3->m.ns || !tk_state_ok(&C3->m, s + 3)) {
-        free(s);
-        logmsg(C3, ST_ERROR, "serialized FMU state refused: it belongs to another model");
-        return fmi3Error;
-    }
+    if (deserialize(C3, serializedState, size, &s) != ST_OK) return fmi3Error;
     *state = s;
     return fmi3OK;
 }

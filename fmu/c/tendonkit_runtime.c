@@ -142,8 +142,7 @@ int tk_load(tk_model *m, const char *path, char *why, size_t nwhy) {
            + (size_t)m->ny * m->nu + (size_t)m->nx + (size_t)m->nx * m->nt /* A B C D x0 E */
            + (size_t)m->nt * m->nx                                       /* coef */
            + 4 * (size_t)m->nf                                           /* power..param */
-           + (size_t)m->nu + (size_t)m->ny + (size_t)m->nt + 2 * (size_t)m->nx
-           + (size_t)m->nout + (size_t)m->nu + (size_t)m->ny + (size_t)m->nx; /* work */
+           + (size_t)m->nu + (size_t)m->ny + (size_t)m->nt + (size_t)m->nx; /* ub yraw theta xn */
     m->store = (double *)calloc(need + 1, sizeof(double));
     m->bi = (tk_block *)calloc((size_t)m->nbi + 1, sizeof(tk_block));
     m->bo = (tk_block *)calloc((size_t)m->nbo + 1, sizeof(tk_block));
@@ -172,8 +171,6 @@ int tk_load(tk_model *m, const char *path, char *why, size_t nwhy) {
         m->yraw = p; p += m->ny;
         m->theta = p; p += m->nt;
         m->xn = p; p += m->nx;
-        m->tmp = p; p += m->nx;
-        m->yout = p; p += m->nout;
         (void)p;
     }
     {

@@ -61,7 +61,7 @@ typedef struct {
     double *S;
     int s_x, s_uh, s_yh, s_xh, s_blk, s_u, s_ratio;
     /* ---- work arrays */
-    double *ub, *yraw, *theta, *xn, *yout, *tmp;
+    double *ub, *yraw, *theta, *xn;
     double *store;           /* one allocation for everything above */
 } tk_model;
 

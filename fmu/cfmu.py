@@ -43,7 +43,7 @@ import numpy as np
 
 from tendonkit import __version__
 from tendonkit.errors import FMUError
-from tendonkit.realize import arx_lag_matrices
+from tendonkit.realize import arx_lag_matrices, fold_offsets
 from tendonkit.robot import RobotParameters
 from tendonkit.schema import ARX, Block, Model, SparseMap, StateSpace
 from tendonkit.simulate import split_delay
@@ -191,6 +191,10 @@ def model_resource(
         Input start values (the operating point).
     """
     rep = model.representation
+    if isinstance(rep, StateSpace) and rep.has_offsets:
+        # the runtime has no operating point: it rides on a constant state
+        rep = fold_offsets(rep)
+        model = model.replace(representation=rep)
     nu, ny = len(model.inputs), len(model.outputs)
     terms = rep.terms
     ptr, rows, nf = _factors(model, terms)

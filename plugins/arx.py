@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import ClassVar, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -39,10 +39,12 @@ from tendonkit.hookspecs import hookimpl
 from tendonkit.identification import (
     build_model,
     one_blas_thread,
+    options_dict,
     require_samples,
     training_fit,
     without_training_fit,
 )
+from tendonkit.plugins import _arx_structure
 from tendonkit.plugins._output_error import refine_output_error
 from tendonkit.regression import scaled_lstsq, term_columns
 from tendonkit.schema import ARX as ARXRep
@@ -59,12 +61,20 @@ class ARX:
 
     Parameters
     ----------
-    na : int
+    na : int or "auto"
         Number of past outputs (>= 0).
-    nb : int or tuple of int
+    nb : int, tuple of int or "auto"
         Number of past values per input (>= 0); one value for all inputs or one per input.
-    nk : int or tuple of int
+    nk : int, tuple of int or "auto"
         Input delay in samples (>= 0); one value for all inputs or one per input.
+        ``"auto"`` for any of the three selects it on the training data
+        (:mod:`tendonkit.plugins._arx_structure`: delays per input as MATLAB's ``delayest``,
+        orders by blocked cross-validation of the simulation error); the candidates are
+        stored in the provenance.
+    max_order : int
+        Largest ``na`` and ``nb`` the automatic choice tries.
+    max_delay : int
+        Largest delay the automatic choice tries.
     offset : bool
         Also estimate a constant offset per output.
     ridge : float
@@ -91,9 +101,11 @@ class ARX:
         "(criterion='simulation'); orders per input; paper: 8, 8, 1."
     )
 
-    na: int = 8
-    nb: int | tuple[int, ...] = 8
-    nk: int | tuple[int, ...] = 1
+    na: int | Literal["auto"] = 8
+    nb: int | tuple[int, ...] | Literal["auto"] = 8
+    nk: int | tuple[int, ...] | Literal["auto"] = 1
+    max_order: int = 10
+    max_delay: int = 10
     offset: bool = False
     ridge: float = 0.0
     bilinear: bool = False
@@ -101,28 +113,48 @@ class ARX:
 
     def __post_init__(self) -> None:
         p = []
-        if not _is_int(self.na) or self.na < 0:
-            p.append(f"na must be an integer >= 0, found {self.na!r}.")
+        if self.na != "auto" and (not _is_int(self.na) or self.na < 0):
+            p.append(f"na must be an integer >= 0 or 'auto', found {self.na!r}.")
         for key in ("nb", "nk"):
             val = getattr(self, key)
+            if val == "auto":
+                continue
             vals = val if isinstance(val, tuple) else (val,)
             if not vals or not all(_is_int(v) and v >= 0 for v in vals):
-                p.append(f"{key} must be an integer >= 0 or a tuple of them, found {val!r}.")
+                p.append(
+                    f"{key} must be an integer >= 0, a tuple of them or 'auto', found {val!r}."
+                )
+        for key in ("max_order", "max_delay"):
+            val = getattr(self, key)
+            if not _is_int(val) or val < (1 if key == "max_order" else 0):
+                p.append(f"{key} must be an integer >= {int(key == 'max_order')}, found {val!r}.")
         if not isinstance(self.ridge, int | float) or not np.isfinite(self.ridge) or self.ridge < 0:
             p.append(f"ridge must be a number >= 0, found {self.ridge!r}.")
         if not isinstance(self.bilinear, bool):
             p.append(f"bilinear must be true or false, found {self.bilinear!r}.")
         if self.criterion not in ("equation", "simulation"):
             p.append(f"criterion must be 'equation' or 'simulation', found {self.criterion!r}.")
-        if not p and self.bilinear and self.na == 0:
+        if not p and self.bilinear and self.na == 0:  # ("auto" is never 0)
             p.append("bilinear needs na >= 1: the products read y[k-1].")
-        if not p and self.na == 0 and max(_tup(self.nb, 1)) == 0:
+        if not p and self.na == 0 and self.nb != "auto" and max(_tup(self.nb, 1)) == 0:
             p.append("na and nb are both zero: the model would have no parameters.")
         if p:
             raise OptionError("Invalid options for arx:", p)
 
+    @property
+    def n_a(self) -> int:
+        """``na`` as given (not ``"auto"``)."""
+        assert self.na != "auto", "resolve 'auto' first"
+        return self.na
+
+    @property
+    def automatic(self) -> bool:
+        """Whether any of ``na``, ``nb``, ``nk`` is chosen from the data."""
+        return "auto" in (self.na, self.nb, self.nk)
+
     def orders(self, nu: int) -> tuple[list[int], list[int]]:
-        """Per-input ``nb`` and ``nk`` lists for ``nu`` inputs."""
+        """Per-input ``nb`` and ``nk`` lists for ``nu`` inputs (given, not ``"auto"``)."""
+        assert self.nb != "auto" and self.nk != "auto", "resolve 'auto' first"
         nb, nk = _tup(self.nb, nu), _tup(self.nk, nu)
         if len(nb) != nu or len(nk) != nu:
             raise OptionError(
@@ -133,13 +165,15 @@ class ARX:
 
     def identify(self, dataset: Dataset) -> Model:
         """Estimate the ARX model from ``dataset`` (inputs and outputs as selected there)."""
+        if self.automatic:
+            return self._identify_automatic(dataset)
         nu, ny = dataset.nu, dataset.ny
         nb, nk = self.orders(nu)
-        lag = max([self.na, *[k + b - 1 for k, b in zip(nk, nb)], 0])
+        lag = max([self.n_a, *[k + b - 1 for k, b in zip(nk, nb)], 0])
         if self.bilinear:
             lag = max([lag, *[max(k, 1) for k in nk]])
-        n_par = self.na * ny + sum(nb) + int(self.offset) + (nu * ny if self.bilinear else 0)
-        require_samples(dataset, lag + 1, f"arx(na={self.na}, nb={self.nb}, nk={self.nk})")
+        n_par = self.n_a * ny + sum(nb) + int(self.offset) + (nu * ny if self.bilinear else 0)
+        require_samples(dataset, lag + 1, f"arx(na={self.n_a}, nb={self.nb}, nk={self.nk})")
         rows = sum(e.n_samples - lag for e in dataset.experiments)
         if rows < n_par:
             raise DataError(
@@ -154,11 +188,31 @@ class ARX:
             refined = refine_output_error(start, dataset)
             return build_model(self, dataset, refined.representation)
 
+    def _identify_automatic(self, dataset: Dataset) -> Model:
+        with one_blas_thread():
+            na, nb, nk, record = _arx_structure.select(self, dataset)
+        chosen = dataclasses.replace(self, na=na, nb=nb, nk=nk)
+        model = chosen.identify(dataset)
+        prov = model.provenance
+        note = f"structure selected on the training data: na={na}, nb={list(nb)}, nk={list(nk)}"
+        return model.replace(
+            provenance=dataclasses.replace(
+                prov,
+                options=options_dict(self),
+                notes="; ".join(x for x in (prov.notes, note) if x),
+                details={
+                    **prov.details,
+                    **record,
+                    "selected": {"na": na, "nb": list(nb), "nk": list(nk)},
+                },
+            )
+        )
+
     def _regression(
         self, dataset: Dataset, nb: list[int], nk: list[int], lag: int
     ) -> tuple[FloatArray, FloatArray, tuple[Term, ...]]:
         Phi = np.vstack(
-            [_regressors(e.u, e.y, self.na, nb, nk, lag, self.offset) for e in dataset.experiments]
+            [_regressors(e.u, e.y, self.n_a, nb, nk, lag, self.offset) for e in dataset.experiments]
         )
         Y = np.vstack([e.y[lag:] for e in dataset.experiments])
         terms = bilinear_terms(dataset, nk) if self.bilinear else ()
@@ -181,7 +235,7 @@ class ARX:
     ) -> Model:
         nu, ny = dataset.nu, dataset.ny
         n_lin = theta.shape[0] - len(terms)
-        rep = _to_representation(theta[:n_lin], self.na, nb, nk, ny, nu, self.offset)
+        rep = _to_representation(theta[:n_lin], self.n_a, nb, nk, ny, nu, self.offset)
         if terms:
             rep = dataclasses.replace(rep, terms=terms, term_coefficients=theta[n_lin:].copy())
         return build_model(self, dataset, rep)

@@ -66,6 +66,14 @@ class Block:
 class StateSpace:
     """Discrete-time state space ``x[k+1] = A x + B u``, ``y = C x + D u``.
 
+    An optional operating point ``u0`` (length nu) and ``y0`` (length ny) makes the model act
+    on deviations: ``x[k+1] = A x + B (u - u0)``, ``y = C x + D (u - u0) + y0`` (MATLAB's
+    ``InputOffset``/``OutputOffset``).  ``u0`` is what keeps an integrating model from drifting;
+    ``y0`` is a level the dynamics do not produce (a sensor offset).  Simulation, initial-state
+    estimation and prediction work on the deviations; consumers that step the model without
+    estimating states (the stepper, FMUs, MPC) use :func:`tendonkit.realize.fold_offsets`,
+    which carries them in one constant state.
+
     ``K`` is an optional innovation (Kalman) gain, ``x[k+1] = A x + B u + K e``, used for
     k-step prediction and state estimation.  Optional nonlinear ``terms`` Θ[k] over outputs and
     inputs (lag >= 0; ``y[k]`` is known before ``x[k+1]``) enter the state update through ``E``
@@ -80,12 +88,19 @@ class StateSpace:
     K: FloatArray | None = None
     terms: tuple[Term, ...] = ()
     E: FloatArray | None = None
+    u0: FloatArray | None = None
+    y0: FloatArray | None = None
     kind: Literal["state_space"] = "state_space"
 
     @property
     def n_states(self) -> int:
         """Number of states."""
         return int(self.A.shape[0])
+
+    @property
+    def has_offsets(self) -> bool:
+        """Whether a non-zero operating point ``u0`` or ``y0`` is set."""
+        return any(v is not None and bool(np.any(np.asarray(v) != 0)) for v in (self.u0, self.y0))
 
 
 @dataclass(frozen=True, eq=False)

@@ -66,7 +66,7 @@ _TOP_KEYS = {
     "provenance",
 }
 _REP_KEYS = {
-    "state_space": {"kind", "A", "B", "C", "D", "x0", "K", "terms", "E"},
+    "state_space": {"kind", "A", "B", "C", "D", "x0", "K", "terms", "E", "u0", "y0"},
     "arx": {"kind", "A", "B", "nk", "offset", "terms", "term_coefficients"},
     "sparse_map": {"kind", "terms", "coefficients", "output_states", "x0"},
 }
@@ -216,11 +216,14 @@ def _representation(raw: Any, p: list[str]) -> StateSpace | ARX | SparseMap | No
         K = _matrix(raw.get("K"), f"{where}.K", p, 2)
         sterms = _terms(raw.get("terms", []), f"{where}.terms", p)
         E = _matrix(raw.get("E"), f"{where}.E", p, 2)
+        u0 = _matrix(raw.get("u0"), f"{where}.u0", p, 1)
+        y0 = _matrix(raw.get("y0"), f"{where}.y0", p, 1)
         if len(p) > n0:
             return None
         return StateSpace(
-            A=mats["A"], B=mats["B"], C=mats["C"], D=mats["D"], x0=x0, K=K, terms=sterms, E=E
-        )
+            A=mats["A"], B=mats["B"], C=mats["C"], D=mats["D"], x0=x0, K=K, terms=sterms, E=E,
+            u0=u0, y0=y0,
+        )  # fmt: skip
     if kind == "arx":
         A = _matrix_list(raw.get("A"), f"{where}.A", p)
         B = _matrix_list(raw.get("B"), f"{where}.B", p)

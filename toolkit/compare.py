@@ -15,11 +15,13 @@ import numpy as np
 
 from .dataset import Dataset
 from .errors import DataError
-from .figures import plot_outputs
+from .figures import plot_band, plot_bode, plot_outputs, plot_structure_selection
+from .frequency import empirical_response, model_response
 from .metrics import FitRow, fit, fit_table
 from .predict import predict
 from .schema import Model
 from .simulate import aligned, divergence, simulate
+from .uncertainty import covariance, simulate_band
 
 #: Per-model additions to a row of :func:`compare`: ``(model, data, sims, name) -> dict``.
 RowExtras = Callable[[Model, Dataset, list[np.ndarray], str], dict[str, Any]]
@@ -155,7 +157,7 @@ def compare(
                 data_files, models[0].input_names, models[0].output_names, time=time
             )
         )
-        result["figures"] = plot_compare(models, names, data0, plot_dir, initial)
+        result["figures"] = plot_compare(models, names, data0, plot_dir, initial, init_window)
     return result
 
 
@@ -211,15 +213,55 @@ def plot_compare(
     data: Dataset,
     plot_dir: str | Path,
     initial: str = "estimate",
+    init_window: int | None = None,
 ) -> list[str]:
-    """Measured vs simulated outputs of every model (one PNG), as :func:`compare` scores them."""
+    """Figures of the comparison (PNG paths).
+
+    - measured against simulated outputs of every model, as :func:`compare` scores them;
+    - for a model whose identifier selected its structure, the candidates' errors against
+      order (:func:`~tendonkit.figures.plot_structure_selection`);
+    - for a model with a parameter covariance, its simulation with the 99 % band
+      (:func:`~tendonkit.uncertainty.simulate_band`);
+    - for linear models, their Bode plots over the data's spectral estimate
+      (:mod:`tendonkit.frequency`).
+    """
     sims: dict[str, np.ndarray] = {}
     model0 = models[0]
     for name, model in zip(names, models):
-        _, s = score(model, data, initial=initial)
+        _, s = score(model, data, initial=initial, init_window=init_window)
         sims[str(name)] = np.vstack(s)
     data0 = aligned(model0, data)
     t = np.concatenate([e.t for e in data0.experiments])
     units = [s.unit for s in model0.outputs]
     path = plot_outputs(Path(plot_dir), "compare", t, data0.y, sims, model0.output_names, units)
-    return [str(path)]
+    paths = [str(path)]
+    out = Path(plot_dir)
+    for name, model in zip(names, models):
+        table = model.provenance.details.get("candidates")
+        if table:  # the identifier selected the structure: show how
+            paths.append(str(plot_structure_selection(out, str(name), table)))
+        if covariance(model) is not None and initial in ("estimate", "zero", "model"):
+            bands = [
+                simulate_band(model, e.u, e.y, initial=initial, init_window=init_window)
+                for e in data0.experiments
+            ]
+            y_hat = np.vstack([b[0] for b in bands])
+            half = np.vstack([b[1] for b in bands])
+            paths.append(
+                str(plot_band(out, str(name), t, data0.y, y_hat, half, model0.output_names, units))
+            )
+    linear = [(str(n), m) for n, m in zip(names, models) if m.is_linear]
+    if linear:
+        try:
+            freqs, G, _ = empirical_response(data0)
+        except DataError:
+            return paths  # too short for a spectral estimate
+        responses = {n: model_response(m, freqs) for n, m in linear}
+        paths.append(
+            str(
+                plot_bode(
+                    out, "compare", freqs, G, responses, model0.input_names, model0.output_names
+                )
+            )
+        )
+    return paths

@@ -71,6 +71,126 @@ def plot_outputs(
     return _save(fig, out_dir / f"outputs_{_slug(name)}.png")
 
 
+def plot_structure_selection(
+    out_dir: Path, name: str, candidates: Sequence[dict[str, Any]]
+) -> Path:
+    """Held-out and estimation error against model order, one line per structure family.
+
+    ``candidates`` is the table a structure-selecting identifier stores in its provenance
+    (``details["candidates"]``: ``order``, ``integrator``, ``estimation_rms``,
+    ``held_out_rms``, ``selected`` for ``pem``; ``na``, ``nb``, ``held_out_rms`` for ``arx``,
+    drawn against ``na`` with a line per ``nb``); the selected candidate is circled.
+    """
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(7, 4))
+    families: dict[str, list[dict[str, Any]]] = {}
+    arx = any("na" in row for row in candidates)
+    for row in candidates:
+        if "held_out_rms" not in row or not np.isfinite(row["held_out_rms"]):
+            continue
+        if arx:  # ARX orders: the error against na, one line per nb
+            row = {**row, "order": row["na"]}
+            label = f"nb = {max(row['nb'])}"
+        else:
+            label = "with integrator(s)" if row.get("integrator") else "stable"
+        families.setdefault(label, []).append(row)
+    for label, rows in families.items():
+        rows = sorted(rows, key=lambda r: r["order"])
+        orders = [r["order"] for r in rows]
+        (line,) = ax.semilogy(
+            orders, [r["held_out_rms"] for r in rows], "o-", label=f"held out, {label}"
+        )
+        if all("estimation_rms" in r for r in rows):
+            ax.semilogy(
+                orders,
+                [r["estimation_rms"] for r in rows],
+                "x--",
+                color=line.get_color(),
+                alpha=0.6,
+                label=f"estimation, {label}",
+            )
+        for r in rows:
+            if r.get("selected"):
+                ax.plot(
+                    r["order"], r["held_out_rms"], "o", ms=14, mfc="none", mec="red", mew=2,
+                    label="selected",
+                )  # fmt: skip
+    ax.set_xlabel("na (past outputs)" if arx else "order (states)")
+    ax.set_ylabel("normalised RMS error [-]")
+    ax.set_title(f"Structure selection: {name}")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=7, ncol=2 if len(families) > 4 else 1)
+    return _save(fig, out_dir / f"structure_{_slug(name)}.png")
+
+
+def plot_band(
+    out_dir: Path,
+    name: str,
+    t: FloatArray,
+    y: FloatArray,
+    y_hat: FloatArray,
+    half_width: FloatArray,
+    outputs: Sequence[str],
+    units: Sequence[str] | None = None,
+    level: float = 0.99,
+) -> Path:
+    """Measured outputs, the simulation and its confidence band (MATLAB ``showConfidence``)."""
+    plt = _plt()
+    ny = y.shape[1]
+    fig, axes = plt.subplots(ny, 1, figsize=(10, 2.6 * ny), sharex=True, squeeze=False)
+    for j in range(ny):
+        ax = axes[j, 0]
+        ax.plot(t, y[:, j], color="black", lw=1.0, label="measured")
+        ax.plot(t, y_hat[:, j], lw=1.0, label="simulated")
+        ax.fill_between(
+            t, y_hat[:, j] - half_width[:, j], y_hat[:, j] + half_width[:, j], alpha=0.3,
+            label=f"{level:.0%} band (parameter uncertainty)",
+        )  # fmt: skip
+        unit = units[j] if units and units[j] else "signal units"
+        ax.set_ylabel(f"{outputs[j]} [{unit}]")
+        ax.legend(loc="upper right", fontsize=8)
+        ax.grid(alpha=0.3)
+    axes[-1, 0].set_xlabel("time [s]")
+    axes[0, 0].set_title(f"Simulation with its confidence band: {name}")
+    return _save(fig, out_dir / f"band_{_slug(name)}.png")
+
+
+def plot_bode(
+    out_dir: Path,
+    name: str,
+    freqs: FloatArray,
+    empirical: Any,
+    models: dict[str, Any],
+    inputs: Sequence[str],
+    outputs: Sequence[str],
+) -> Path:
+    """Bode magnitude and phase of models over the empirical (spectral) estimate, per pair."""
+    plt = _plt()
+    nu, ny = len(inputs), len(outputs)
+    pairs = [(j, a) for j in range(ny) for a in range(nu)]
+    fig, axes = plt.subplots(
+        2, len(pairs), figsize=(4.5 * len(pairs), 6), sharex=True, squeeze=False
+    )
+    for c, (j, a) in enumerate(pairs):
+        mag, ph = axes[0, c], axes[1, c]
+        g = empirical[:, j, a]
+        mag.semilogx(freqs, 20 * np.log10(np.abs(g) + 1e-300), ".", color="black", ms=3,
+                     label="data (spectral H1)")  # fmt: skip
+        ph.semilogx(freqs, np.degrees(np.unwrap(np.angle(g))), ".", color="black", ms=3)
+        for label, G in models.items():
+            mag.semilogx(freqs, 20 * np.log10(np.abs(G[:, j, a]) + 1e-300), lw=1.2, label=label)
+            ph.semilogx(freqs, np.degrees(np.unwrap(np.angle(G[:, j, a]))), lw=1.2)
+        mag.set_title(f"{inputs[a]} → {outputs[j]}")
+        mag.set_ylabel("magnitude [dB]")
+        ph.set_ylabel("phase [deg]")
+        ph.set_xlabel("frequency [Hz]")
+        for ax in (mag, ph):
+            ax.grid(alpha=0.3, which="both")
+        mag.legend(fontsize=8)
+    fig.suptitle(f"Frequency response: {name}")
+    return _save(fig, out_dir / f"bode_{_slug(name)}.png")
+
+
 def plot_joints(
     out_dir: Path, name: str, t: FloatArray, q_meas: FloatArray, q_model: FloatArray
 ) -> Path:

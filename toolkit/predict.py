@@ -6,6 +6,7 @@ from the measured history.  Free-run simulation is :mod:`tendonkit.simulate`.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import numpy as np
@@ -51,6 +52,12 @@ def predict(model: Model, u: FloatArray, y: FloatArray, k: int = 1) -> FloatArra
     rep = model.representation
     if isinstance(rep, StateSpace) and rep.terms:
         return _predict_ss_terms(model, rep, ub, y, k)
+    if isinstance(rep, StateSpace) and rep.has_offsets:
+        # the Kalman predictor runs on the deviations from the operating point
+        u0 = 0.0 if rep.u0 is None else np.asarray(rep.u0, dtype=float)
+        y0 = 0.0 if rep.y0 is None else np.asarray(rep.y0, dtype=float)
+        lin = dataclasses.replace(rep, u0=None, y0=None)
+        return _predict_ss(lin, ub - u0, y - y0, k) + y0
     if isinstance(rep, StateSpace):
         return _predict_ss(rep, ub, y, k)
     return _predict_recursive(model, ub, y, k)
@@ -62,34 +69,40 @@ def _predict_ss_terms(
     """k-step prediction with terms: Θ from measurements up to t-k, from predictions after."""
     assert rep.E is not None
     ny = rep.C.shape[0]
-    theta = ss_theta_measured(model, u, y)
+    theta = ss_theta_measured(model, u, y)  # Θ reads the raw signals
     lin = StateSpace(
         rep.A, np.hstack([rep.B, rep.E]), rep.C, np.hstack([rep.D, np.zeros((ny, rep.E.shape[1]))])
     )
+    # the linear part acts on deviations from the operating point (zero without one)
+    u0 = np.zeros(u.shape[1]) if rep.u0 is None else np.asarray(rep.u0, dtype=float)
+    y0 = np.zeros(ny) if rep.y0 is None else np.asarray(rep.y0, dtype=float)
+    y_raw, u, y = y, u - u0, y - y0
     ua = np.hstack([u, theta])
     K = rep.K if rep.K is not None else fitted_kalman_gain(lin, ua, y)
     Xp = _one_step_states(lin, K, ua, y)
     if k == 1:
-        return Xp[:-1] @ rep.C.T + u @ rep.D.T
+        return Xp[:-1] @ rep.C.T + u @ rep.D.T + y0
     ct = CompiledTerms(rep.terms)
     L = max((t.max_lag for t in rep.terms), default=1)
-    out = y.copy()
+    out = y_raw.copy()
     names_in, names_out = model.input_names, model.output_names
     for t in range(k - 1 + L, u.shape[0]):
         x = Xp[t - k + 1]
-        ywin = {n: list(y[t - k + 1 - L : t - k + 1, j]) for j, n in enumerate(names_out)}
+        ywin = {n: list(y_raw[t - k + 1 - L : t - k + 1, j]) for j, n in enumerate(names_out)}
         for j in range(t - k + 1, t):
-            yj = rep.C @ x + rep.D @ u[j]
+            yj = rep.C @ x + rep.D @ u[j] + y0
             for c, n in enumerate(names_out):
                 ywin[n].append(yj[c])
             vals = np.array(
                 [
-                    ywin[n][-1 - lag] if n in ywin else u[j - lag, names_in.index(n)]
+                    ywin[n][-1 - lag]
+                    if n in ywin
+                    else u[j - lag, names_in.index(n)] + u0[names_in.index(n)]
                     for n, lag in ct.keys
                 ]
             )
             x = rep.A @ x + rep.B @ u[j] + rep.E @ ct.evaluate(vals)
-        out[t] = rep.C @ x + rep.D @ u[t]
+        out[t] = rep.C @ x + rep.D @ u[t] + y0
     return out
 
 

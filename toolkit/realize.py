@@ -96,7 +96,33 @@ def add_input_delays(ss: StateSpace, delays: Sequence[Any]) -> StateSpace:
     C = np.hstack([ss.C, ss.D @ Cd])
     D = ss.D @ Dd
     x0 = None if ss.x0 is None else np.concatenate([ss.x0, np.zeros(total)])
-    return StateSpace(A=A, B=B, C=C, D=D, x0=x0)
+    # the registers hold u - u0 (the taps sum to one, so the delayed deviation is exact)
+    return StateSpace(A=A, B=B, C=C, D=D, x0=x0, u0=ss.u0, y0=ss.y0)
+
+
+def fold_offsets(ss: StateSpace) -> StateSpace:
+    """The same model without an operating point: ``u0`` and ``y0`` carried by a constant state.
+
+    ``x[k+1] = A x + B (u - u0)``, ``y = C x + D (u - u0) + y0`` becomes the model with one
+    more state ``c`` (``c[k+1] = c``, starting at 1) that adds ``-B u0`` to the state update
+    and ``y0 - D u0`` to the outputs.  From the stored initial state (``x0``, and ``c = 1``) the
+    two give the same outputs to rounding; they differ only where states are *estimated*
+    (which would treat ``c`` as free), which is why simulation keeps the offsets apart.
+    A model without offsets is returned unchanged.
+    """
+    if not ss.has_offsets:
+        return ss
+    n, nu = ss.B.shape
+    ny = ss.C.shape[0]
+    u0 = np.zeros(nu) if ss.u0 is None else np.asarray(ss.u0, dtype=float)
+    y0 = np.zeros(ny) if ss.y0 is None else np.asarray(ss.y0, dtype=float)
+    A = np.block([[ss.A, -(ss.B @ u0)[:, None]], [np.zeros((1, n)), np.ones((1, 1))]])
+    B = np.vstack([ss.B, np.zeros((1, nu))])
+    C = np.hstack([ss.C, (y0 - ss.D @ u0)[:, None]])
+    x0 = np.concatenate([np.zeros(n) if ss.x0 is None else ss.x0, [1.0]])
+    K = None if ss.K is None else np.vstack([ss.K, np.zeros((1, ny))])
+    E = None if ss.E is None else np.vstack([ss.E, np.zeros((1, ss.E.shape[1]))])
+    return StateSpace(A=A, B=B, C=C, D=ss.D, x0=x0, K=K, terms=ss.terms, E=E)
 
 
 def to_state_space(model: Model) -> StateSpace:

@@ -278,6 +278,8 @@ def _rep_to_dict(rep: Representation) -> dict[str, Any]:
             "K": _arr(rep.K),
             "terms": [t.to_dict() for t in rep.terms],
             "E": _arr(rep.E),
+            "u0": _arr(rep.u0),
+            "y0": _arr(rep.y0),
         }
     if isinstance(rep, ARX):
         return {
@@ -327,6 +329,10 @@ def _check_model(m: Model) -> list[str]:
             p.append("state_space terms need the matrix E.")
         if rep.E is not None:
             _shape(p, "E", rep.E, (n, len(rep.terms)))
+        if rep.u0 is not None:
+            _shape(p, "u0", rep.u0, (nu,))
+        if rep.y0 is not None:
+            _shape(p, "y0", rep.y0, (ny,))
         _term_signals(p, rep.terms, set(m.input_names) | set(m.output_names))
     elif isinstance(rep, ARX):
         for i, a in enumerate(rep.A):

@@ -32,6 +32,7 @@ from ._response import (
 from ._simulate_arx import _sim_arx, arx_max_lag
 from .dataset import Dataset
 from .errors import DataError, SimulationError
+from .realize import fold_offsets
 from .schema import ARX, Block, Model, SparseMap, StateSpace
 from .terms import CompiledTerms, Term, series_getter
 
@@ -339,11 +340,14 @@ def _ss_x0(
     if rep.terms and rep.E is not None and model is not None:
         # Θ from the measured outputs acts as a known extra input for the initial-state fit.
         theta = ss_theta_measured(model, u, y)
+        nt = rep.E.shape[1]
         lin = StateSpace(
             rep.A,
             np.hstack([rep.B, rep.E]),
             rep.C,
-            np.hstack([rep.D, np.zeros((rep.C.shape[0], rep.E.shape[1]))]),
+            np.hstack([rep.D, np.zeros((rep.C.shape[0], nt))]),
+            u0=None if rep.u0 is None else np.concatenate([rep.u0, np.zeros(nt)]),
+            y0=rep.y0,
         )
         return estimate_x0(lin, np.hstack([u, theta]), y, window)
     return estimate_x0(rep, u, y, window)
@@ -357,7 +361,17 @@ def _sim_ss(
     window: int | None = None,
 ) -> FloatArray:
     x0 = _ss_x0(rep, u, y, initial, window=window)
-    return ss_response(rep.A, rep.B, rep.C, rep.D, u, x0)
+    if not rep.has_offsets:
+        return ss_response(rep.A, rep.B, rep.C, rep.D, u, x0)
+    du, y0 = _deviations(rep, u)
+    return ss_response(rep.A, rep.B, rep.C, rep.D, du, x0) + y0
+
+
+def _deviations(rep: StateSpace, u: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """``u - u0`` and ``y0`` of a state-space model (zeros where the offset is unset)."""
+    du = u if rep.u0 is None else u - np.asarray(rep.u0, dtype=float)
+    y0 = np.zeros(rep.C.shape[0]) if rep.y0 is None else np.asarray(rep.y0, dtype=float)
+    return du, y0
 
 
 def ss_theta_measured(model: Model, u: FloatArray, y: FloatArray) -> FloatArray:
@@ -387,6 +401,10 @@ def _sim_ss_terms(
     """State space with nonlinear terms of past outputs: a loop over samples."""
     assert rep.E is not None
     x = _ss_x0(rep, u, y, initial, model, window).copy()
+    if rep.has_offsets:  # the loop below steps raw signals: the offsets ride on a constant state
+        rep = fold_offsets(rep)
+        x = np.append(x, 1.0)
+    assert rep.E is not None
     ct = CompiledTerms(rep.terms)
     N, ny, nu = u.shape[0], rep.C.shape[0], u.shape[1]
     L = max((t.max_lag for t in rep.terms), default=1)
@@ -445,10 +463,14 @@ def state_space_response(
 def estimate_x0(
     rep: StateSpace, u: FloatArray, y: FloatArray, window: int | None = None
 ) -> FloatArray:
-    """Least-squares initial state from the first ``window`` samples (default ``max(10 n, 50)``)."""
+    """Least-squares initial state from the first ``window`` samples (default ``max(10 n, 50)``).
+
+    A model with an operating point (``u0``, ``y0``) is fitted on the deviations from it.
+    """
     n = rep.n_states
     N = min(u.shape[0], window or max(10 * n, 50))
-    forced = ss_response(rep.A, rep.B, rep.C, rep.D, u[:N], np.zeros(n))
+    du, y0 = _deviations(rep, u[:N])
+    forced = ss_response(rep.A, rep.B, rep.C, rep.D, du, np.zeros(n)) + y0
     ny = rep.C.shape[0]
     obs = np.empty((N * ny, n))
     M = rep.C.copy()

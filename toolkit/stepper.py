@@ -39,7 +39,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .errors import DataError
-from .realize import arx_lag_matrices
+from .realize import arx_lag_matrices, fold_offsets
 from .schema import ARX, Block, Model, SparseMap, StateSpace
 from .simulate import arx_max_lag, split_delay
 from .terms import CompiledTerms, scalar_evaluator
@@ -153,6 +153,8 @@ class Stepper:
         self.model = model
         self.nu, self.ny = len(model.inputs), len(model.outputs)
         rep = model.representation
+        if isinstance(rep, StateSpace):
+            rep = fold_offsets(rep)  # an operating point rides on a constant state
         self._rep = rep
         self._lag = history_length(model)
         if isinstance(rep, StateSpace) and rep.terms:

@@ -458,11 +458,27 @@ def _edge_models() -> dict[str, Model]:
             (Signal("y1"), Signal("y2")),
             ARX((), (np.ones((2, 2)), 0.5 * np.ones((2, 2))), (0, 3)),
         ),
+        # an operating point (pem's offsets): an integrator driven by u - u0, a level y0
+        "offsets": Model(
+            "offsets",
+            0.1,
+            (Signal("u"),),
+            (Signal("y1"), Signal("y2")),
+            StateSpace(
+                np.array([[0.8, 0.0], [0.1, 1.0]]),
+                np.array([[1.0], [0.0]]),
+                np.array([[0.0, 1.0], [1.0, 0.0]]),
+                np.array([[0.0], [0.5]]),
+                x0=np.array([0.3, -1.0]),
+                u0=np.array([0.25]),
+                y0=np.array([0.0, 4.0]),
+            ),
+        ),
     }
 
 
 @pytest.mark.parametrize("fmi", [2, 3])
-@pytest.mark.parametrize("case", ["static", "time", "fir"])
+@pytest.mark.parametrize("case", ["static", "time", "fir", "offsets"])
 def test_edge_models_export_validate_and_equal_simulate(tmp_path, case, fmi):
     model = _edge_models()[case]
     path = export(model, tmp_path, fmi, platforms=HOST)

@@ -217,3 +217,33 @@ def test_output_error_options_and_models_are_checked():
     n4 = tk.identify(data, "n4sid", order=1)
     with pytest.raises(OptionError, match="needs an ARX model"):
         refine_output_error(n4, data)
+
+
+def test_automatic_structure_finds_delays_per_input_and_orders():
+    """na/nb/nk="auto": the delays per input (1, 2, 3) and the orders (2, 2) of a slightly
+    noisy coupled system are found on the training data; the record is in the provenance."""
+    truth = _arx_truth()
+    rng = np.random.default_rng(4)
+    u = rng.normal(size=(6000, 3))
+    y = tk.simulate(truth, u, initial="zero") + 0.01 * rng.normal(size=(6000, 2))
+    ds = tk.Dataset.from_arrays(u, y, 0.03, truth.input_names, truth.output_names)
+    m = tk.identify(ds, "arx", na="auto", nb="auto", nk="auto", max_order=4, max_delay=5)
+    sel = m.provenance.details["selected"]
+    assert sel == {"na": 2, "nb": [2, 2, 2], "nk": [1, 2, 3]}
+    assert [d["delay"] for d in m.provenance.details["delays"]] == [1, 2, 3]
+    table = m.provenance.details["candidates"]
+    assert len(table) == 5 * 4 and sum(r["selected"] for r in table) == 1
+    assert m.provenance.options["na"] == "auto"
+    # the one-step loss keeps falling with the order; the held-out simulation error does not
+    chosen = next(r for r in table if r["selected"])
+    assert chosen["held_out_rms"] <= min(r["held_out_rms"] for r in table) * 1.01
+
+
+def test_auto_is_accepted_from_the_command_line_form():
+    from tendonkit.plugins.arx import ARX as ArxOptions
+    from tendonkit.registry import create_options
+
+    opts = create_options(ArxOptions, {"na": "auto", "nb": "3", "nk": "auto"})
+    assert opts.na == "auto" and opts.nb == 3 and opts.nk == "auto"
+    with pytest.raises(OptionError, match="na must be"):
+        ArxOptions(na="sometimes")  # type: ignore[arg-type]

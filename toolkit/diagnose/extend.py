@@ -98,6 +98,9 @@ def _extend_ss_by_refit(
     frep = fitted.representation
     if not isinstance(frep, StateSpace) or frep.terms:
         return _extend_ss(model, rep, data, terms)
+    if frep.u0 is not None and np.any(frep.u0[nu:] != 0):
+        # an offset on Θ is a constant state bias this form has no place for
+        return _extend_ss(model, rep, data, terms)
     return model.replace(
         representation=StateSpace(
             A=frep.A,
@@ -108,6 +111,8 @@ def _extend_ss_by_refit(
             K=None,
             terms=all_terms,
             E=frep.B[:, nu:].copy(),
+            u0=None if frep.u0 is None else frep.u0[:nu].copy(),
+            y0=frep.y0,
         )
     )
 
@@ -236,16 +241,20 @@ def _extend_ss(model: Model, rep: StateSpace, data: Dataset, terms: tuple[Term, 
     estimate_d = bool(np.any(rep.D != 0))
     blocks, targets = [], []
     n_exp = len(data.experiments)
+    # the linear part acts on deviations from the operating point; Θ reads the raw signals
+    u0 = np.zeros(nu) if rep.u0 is None else np.asarray(rep.u0, dtype=float)
+    y0 = np.zeros(ny) if rep.y0 is None else np.asarray(rep.y0, dtype=float)
     for ei, e in enumerate(data.experiments):
         theta = term_columns_of(all_terms, _signals(model, e), e.n_samples)
-        sig = np.hstack([e.u, theta])
+        du = e.u - u0
+        sig = np.hstack([du, theta])
         resp = _unit_responses(rep.A, rep.C, sig)  # (N, ny, nx*nc)
         N = e.n_samples
         parts = [resp.reshape(N * ny, -1)]
         if estimate_d:
             Dcols = np.zeros((N, ny, ny * nu))
             for j in range(ny):
-                Dcols[:, j, j * nu : (j + 1) * nu] = e.u
+                Dcols[:, j, j * nu : (j + 1) * nu] = du
             parts.append(Dcols.reshape(N * ny, -1))
         X0 = np.zeros((N * ny, nx * n_exp))
         M = rep.C.copy()
@@ -254,7 +263,7 @@ def _extend_ss(model: Model, rep: StateSpace, data: Dataset, terms: tuple[Term, 
             M = M @ rep.A
         parts.append(X0)
         blocks.append(np.hstack(parts))
-        targets.append(e.y.reshape(-1, 1))
+        targets.append((e.y - y0).reshape(-1, 1))
     theta_hat = scaled_lstsq(np.vstack(blocks), np.vstack(targets))[:, 0]
     nc = nu + len(all_terms)
     G = theta_hat[: nx * nc].reshape(nx, nc)

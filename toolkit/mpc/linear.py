@@ -102,6 +102,22 @@ def prediction_model(model: Model, reduce: str | int = "minreal") -> LinearPredi
                 "its offset cannot be folded into a constant output offset."
             ) from None
         model = model.replace(representation=replace(rep, offset=None))
+    if isinstance(rep, StateSpace) and rep.has_offsets:
+        # y = G(q)(u - u0) + y0: a stable model adds the constant y0 - G(1) u0 to the outputs.
+        n = rep.n_states
+        u0 = np.zeros(len(model.inputs)) if rep.u0 is None else np.asarray(rep.u0, float)
+        y_const = np.zeros(ny) if rep.y0 is None else np.asarray(rep.y0, float).copy()
+        if np.any(u0 != 0):
+            try:
+                gain = rep.C @ np.linalg.solve(np.eye(n) - rep.A, rep.B) + rep.D
+            except np.linalg.LinAlgError:
+                raise OptionError(
+                    f"State-space model {model.name!r} has an input offset and an integrator "
+                    "(I - A is singular); its offset cannot be folded into a constant output "
+                    "offset."
+                ) from None
+            y_const = y_const - gain @ u0
+        model = model.replace(representation=replace(rep, u0=None, y0=None))
     ss = to_state_space(model)
     A, B, C, D = (np.asarray(m, dtype=float) for m in (ss.A, ss.B, ss.C, ss.D))
     K = None if not isinstance(rep, StateSpace) or ss.K is None else np.asarray(ss.K, float)

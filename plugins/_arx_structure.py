@@ -1,0 +1,159 @@
+"""Automatic ARX structure: delays per input (MATLAB's ``delayest``), then orders.
+
+1. **Delays** (``nk="auto"``), per input: ARX(2, 2) models with that input's delay set to
+   0, 1, …, ``max_delay`` (the other inputs at delay 1) are fitted by least squares; the delay
+   with the smallest one-step prediction loss wins, the smaller delay on a tie within 0.1 %
+   (``delayest``'s procedure; its default orders are 2 and 2).
+2. **Orders** (``na``/``nb="auto"``): every ``na`` in 0 … ``max_order`` and ``nb`` in
+   1 … ``max_order`` (one ``nb`` for all inputs) is scored by the same blocked
+   cross-validation as :mod:`tendonkit.plugins.pem`: every experiment cut into four blocks,
+   each held out in turn, the model fitted on the rest and simulated on the held-out block
+   from the measured history of its first samples; the lowest held-out simulation error
+   wins, the model with fewer parameters on a tie within 1 %.  MATLAB's ``arxstruc`` and
+   ``selstruc`` score the one-step prediction loss instead; a simulation score is what the
+   model is used for, and the one-step loss keeps falling with the order.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import numpy as np
+
+from tendonkit.dataset import Dataset, Experiment
+from tendonkit.errors import OptionError, TendonkitError
+from tendonkit.identification import without_training_fit
+from tendonkit.predict import predict
+from tendonkit.simulate import simulate
+
+#: Blocks of the cross-validation, and the relative margin within which fewer parameters win.
+FOLDS = 4
+PARSIMONY = 0.01
+
+
+def select(
+    options: Any, data: Dataset
+) -> tuple[int, tuple[int, ...], tuple[int, ...], dict[str, Any]]:
+    """Concrete ``(na, nb, nk)`` for the ``"auto"`` entries of ``options``, and the record."""
+    nu = data.nu
+    record: dict[str, Any] = {}
+    if options.nk == "auto":
+        nk, losses = _delays(options, data)
+        record["delays"] = losses
+    else:
+        nk = _tuple(options.nk, nu)
+    na_fixed = None if options.na == "auto" else int(options.na)
+    nb_fixed = None if options.nb == "auto" else _tuple(options.nb, nu)
+    if na_fixed is not None and nb_fixed is not None:
+        return na_fixed, nb_fixed, nk, record
+    nas = range(0, options.max_order + 1) if na_fixed is None else [na_fixed]
+    nbs: list[tuple[int, ...]] = (
+        [(b,) * nu for b in range(1, options.max_order + 1)] if nb_fixed is None else [nb_fixed]
+    )
+    window = max(10, options.max_order + max(nk) + 1)
+    folds = _folds(data, window)
+    rows = []
+    for na in nas:
+        for nb in nbs:
+            trial = dataclasses.replace(options, na=na, nb=nb, nk=nk, criterion="equation")
+            try:
+                err = _held_out(trial, folds, window)
+            except TendonkitError:
+                continue
+            n_par = na * data.ny + sum(nb)
+            rows.append(
+                {
+                    "na": na,
+                    "nb": list(nb),
+                    "parameters": n_par,
+                    "held_out_rms": err,
+                }
+            )
+    if not rows:
+        raise OptionError("arx: no order could be fitted on the cross-validation folds.")
+    top = min(r["held_out_rms"] for r in rows)
+    eligible = [r for r in rows if r["held_out_rms"] <= top * (1.0 + PARSIMONY)]
+    best = min(eligible, key=lambda r: (r["parameters"], r["held_out_rms"]))
+    for r in rows:
+        r["selected"] = r is best
+    record["candidates"] = rows
+    return int(best["na"]), tuple(best["nb"]), nk, record
+
+
+def _tuple(v: Any, n: int) -> tuple[int, ...]:
+    return tuple(v) if isinstance(v, tuple | list) else (int(v),) * n
+
+
+def _delays(options: Any, data: Dataset) -> tuple[tuple[int, ...], list[dict[str, Any]]]:
+    nu = data.nu
+    nk = [1] * nu
+    record = []
+    for m in range(nu):
+        losses = []
+        for d in range(options.max_delay + 1):
+            trial_nk = list(nk)
+            trial_nk[m] = d
+            trial = dataclasses.replace(
+                options, na=2, nb=2, nk=tuple(trial_nk), criterion="equation", offset=True
+            )
+            try:
+                with without_training_fit():
+                    model = trial.identify(data)
+            except TendonkitError:
+                losses.append(np.inf)
+                continue
+            losses.append(_one_step_loss(model, data, 2 + d + 1))
+        best = min(losses)
+        nk[m] = next(d for d, v in enumerate(losses) if v <= best * (1.0 + 1e-3))
+        record.append({"input": data.inputs[m], "loss_by_delay": losses, "delay": nk[m]})
+    return tuple(nk), record
+
+
+def _one_step_loss(model: Any, data: Dataset, lag: int) -> float:
+    err = [(e.y[lag:] - predict(model, e.u, e.y, 1)[lag:]).ravel() for e in data.experiments]
+    e = np.concatenate(err)
+    return float(np.mean(e**2)) if np.all(np.isfinite(e)) else np.inf
+
+
+def _folds(data: Dataset, window: int) -> list[tuple[Dataset, list[Experiment]]]:
+    out = []
+    for j in range(FOLDS):
+        fit, held = [], []
+        for e in data.experiments:
+            edges = np.linspace(0, e.n_samples, FOLDS + 1).round().astype(int)
+            a, b = int(edges[j]), int(edges[j + 1])
+            if b - a <= 2 * window:
+                fit.append(e)
+                continue
+            held.append(_piece(e, a, b))
+            fit += [_piece(e, s, t) for s, t in ((0, a), (b, e.n_samples)) if t - s > window]
+        if held and fit:
+            out.append((data.with_experiments(fit), held))
+    if not out:
+        raise OptionError(
+            "arx: the experiments are too short for the cross-validation of orders; give na and nb."
+        )
+    return out
+
+
+def _piece(e: Experiment, a: int, b: int) -> Experiment:
+    return Experiment(t=e.t[a:b] - e.t[a], u=e.u[a:b], y=e.y[a:b], name=f"{e.name}[{a}:{b}]")
+
+
+def _held_out(options: Any, folds: list[tuple[Dataset, list[Experiment]]], window: int) -> float:
+    sq, count = 0.0, 0
+    sy = None
+    for fit_data, held in folds:
+        with without_training_fit():
+            model = options.identify(fit_data)
+        if sy is None:
+            sy = np.std(np.vstack([e.y for e in fit_data.experiments]), axis=0)
+            sy[~(sy > 0)] = 1.0
+        with np.errstate(all="ignore"):
+            for e in held:
+                sim = simulate(model, e.u, y=e.y, initial="estimate", init_window=window)
+                err = (e.y[window:] - sim[window:]) / sy
+                sq += float(np.sum(err**2))
+                count += err.size
+    return float(np.sqrt(sq / count)) if np.isfinite(sq) else float("inf")

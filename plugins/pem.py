@@ -1,0 +1,534 @@
+"""PEM: prediction-error (output-error) identification of a linear state-space model.
+
+MATLAB's ``ssest``/``pem`` with a zero noise model: every parameter of a state-space model —
+``A``, ``B``, ``C``, ``D`` where asked, the initial state of every experiment, and the
+operating point (``y0``; ``u0`` for integrating plants) — is fitted by minimising the free-run
+*simulation* error, the criterion the model is judged by.  The subspace step
+(:mod:`tendonkit.plugins.n4sid`) gives the start.
+
+Algorithm:
+
+1. **Start.**  ``n4sid`` of the requested order on the mean-removed data.  With an
+   ``integrator`` the subspace model is identified from the *differenced* outputs (a
+   velocity model, with feedthrough) and completed by one pure integrator per output,
+   ``q[k+1] = q[k] + v[k]``; the input offset ``u0`` starts where the mean velocity is zero.
+2. **Refinement.**  The model is written in modal coordinates (:mod:`._modal`): one
+   first-order recursion per real pole, per complex pair and per integrator.  Stability is a
+   bound on the poles (``|p| <= 1 - 1e-6``; integrators stay at exactly 1), and the Jacobian
+   is exact and costs a few compiled filters per mode.  :func:`scipy.optimize.least_squares`
+   (trust-region reflective, Jacobian-scaled) minimises the output-normalised errors.
+3. **Structure selection** (``order=None`` and/or ``integrator=None``) by **blocked
+   cross-validation on the training data only**.  Every experiment is cut into ``folds``
+   blocks (4); each block in turn is held out, the candidate is identified on the rest (the
+   pieces before and after it as separate experiments) and simulated on the held-out block
+   from the initial state estimated on its first ``init_window`` (10) samples, as the
+   benchmarks score.  Why not an information criterion (AIC, BIC): those are computed from
+   the estimation residuals and assume the model class holds, which on real data it does
+   not; they never see what goes wrong in use — a slow mode that drifts over a long free
+   run, or states that a short window cannot fix (the EMPS position: orders above two fit
+   the training data better and drift off on held-out blocks by orders of magnitude).
+   The candidate with the lowest held-out error wins (the cross-validation itself charges a
+   model for parameters that do not predict held-out data); a smaller one within 0.1 % of
+   it — below what the candidates' refinement tolerance resolves — is preferred.  A family (with or without integrators) stops growing after two consecutive
+   orders more than ten times worse than its best.  The winner is identified again on the
+   whole record.  The candidates' table is stored in the provenance
+   (``details["candidates"]``) and drawn by
+   :func:`tendonkit.figures.plot_structure_selection` (``compare --plot``).
+4. **Uncertainty.**  The Gauss–Newton covariance of the parameters at the optimum, mapped
+   to the entries of the stored matrices, is kept in ``details["covariance"]``
+   (:mod:`tendonkit.uncertainty` turns it into a confidence band on simulated outputs).
+
+The result is a :class:`~tendonkit.schema.StateSpace` in real block-diagonal (modal) form
+with its operating point ``u0``/``y0``; no Kalman gain (an output-error model has no noise
+model: prediction uses the gain fitted by :func:`tendonkit.predict.predict`).
+
+References
+----------
+L. Ljung, *System Identification: Theory for the User*, 2nd ed., Prentice Hall, 1999,
+§7 (prediction-error methods) and §4.2 (output-error models); T. McKelvey, A. Helmersson,
+T. Ribarits, "Data driven local coordinates for multivariable linear systems and their
+application to system identification", Automatica 40(9), 2004.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+from numpy.typing import NDArray
+
+from tendonkit.dataset import Dataset, Experiment
+from tendonkit.errors import OptionError, TendonkitError
+from tendonkit.hookspecs import hookimpl
+from tendonkit.identification import build_model, one_blas_thread, require_samples
+from tendonkit.plugins import _modal
+from tendonkit.plugins.n4sid import N4SID
+from tendonkit.schema import StateSpace
+from tendonkit.simulate import estimate_x0, state_space_response
+
+FloatArray = NDArray[np.float64]
+
+#: Largest pole modulus of a stable mode.
+STABLE_RADIUS = 1.0 - 1e-6
+#: A smaller candidate within this relative margin of the best held-out error is preferred
+#: (a tie: the candidates are refined to SELECTION_TOL only).
+PARSIMONY = 0.001
+#: Higher orders of a family are not tried after STOP_AFTER consecutive candidates whose
+#: held-out error exceeds STOP_FACTOR times the family's best (they diverge, not improve).
+STOP_FACTOR = 10.0
+STOP_AFTER = 2
+#: Tolerance (and at most 50 evaluations) of the candidates' refinements: ranking them needs
+#: their errors to a few per cent, not the final model's convergence.
+SELECTION_TOL = 1e-5
+
+
+@dataclass(frozen=True, kw_only=True)
+class PEM:
+    """Options of the prediction-error identifier.
+
+    Parameters
+    ----------
+    order : int or None
+        Number of states (integrators included); ``None`` selects it on held-out data.
+    max_order : int
+        Largest order tried by the selection.
+    integrator : bool or None
+        One pure integrator per output (an integrating plant: a position driven by a
+        force); ``None`` tries both and keeps the better on held-out data.
+    offset : bool
+        Estimate the operating point: ``y0`` (and ``u0`` with integrators, which would
+        otherwise drift), stored in the model and undone in simulation.
+    feedthrough : bool
+        Estimate ``D``; otherwise ``D = 0``.
+    folds : int
+        Blocks every experiment is cut into for the structure selection's cross-validation.
+    init_window : int
+        Samples from which the initial state of a held-out block is estimated before it is
+        scored (the benchmarks' protocol; short windows penalise states the data cannot fix).
+    max_iterations : int
+        Cap on the refinement's function evaluations (each also computes the Jacobian).
+
+    Examples
+    --------
+    >>> from tendonkit.testsystems import random_state_space, simulate_truth
+    >>> data, _ = simulate_truth(random_state_space(3, 1, 1, seed=3), 1000, noise=0.0)
+    >>> model = PEM(order=3, integrator=False).identify(data)
+    >>> model.representation.n_states, round(model.provenance.training_fit["y1"], 4)
+    (3, 100.0)
+    """
+
+    name: ClassVar[str] = "pem"
+    description: ClassVar[str] = (
+        "Prediction-error (output-error) state space: n4sid start, simulation-error "
+        "refinement of all matrices, initial states and offsets; order and integrators "
+        "selected on held-out data."
+    )
+
+    order: int | None = None
+    max_order: int = 8
+    integrator: bool | None = None
+    offset: bool = True
+    feedthrough: bool = False
+    folds: int = 4
+    init_window: int = 10
+    max_iterations: int = 100
+
+    def __post_init__(self) -> None:
+        p: list[str] = []
+        if self.order is not None and (not _is_int(self.order) or self.order < 1):
+            p.append(f"order must be an integer >= 1 or None (automatic), found {self.order!r}.")
+        if not _is_int(self.max_order) or self.max_order < 1:
+            p.append(f"max_order must be an integer >= 1, found {self.max_order!r}.")
+        if self.integrator is not None and not isinstance(self.integrator, bool | np.bool_):
+            p.append(
+                f"integrator must be true, false or None (automatic), found {self.integrator!r}."
+            )
+        for key in ("offset", "feedthrough"):
+            if not isinstance(getattr(self, key), bool | np.bool_):
+                p.append(f"{key} must be true or false, found {getattr(self, key)!r}.")
+        if not _is_int(self.folds) or self.folds < 2:
+            p.append(f"folds must be an integer >= 2, found {self.folds!r}.")
+        if not _is_int(self.init_window) or self.init_window < 1:
+            p.append(f"init_window must be an integer >= 1, found {self.init_window!r}.")
+        if not _is_int(self.max_iterations) or self.max_iterations < 1:
+            p.append(f"max_iterations must be an integer >= 1, found {self.max_iterations!r}.")
+        if p:
+            raise OptionError("Invalid options for pem:", p)
+
+    # ------------------------------------------------------------------------------------
+    def identify(self, dataset: Dataset) -> Any:
+        """Identify a state-space model from ``dataset`` (all experiments)."""
+        with one_blas_thread():
+            return self._identify(dataset)
+
+    def _candidates(self, ny: int) -> list[tuple[int, bool]]:
+        orders = [self.order] if self.order is not None else range(1, self.max_order + 1)
+        integ = [self.integrator] if self.integrator is not None else [False, True]
+        return [(n, i) for i in integ for n in orders if not i or n > ny]
+
+    def _identify(self, dataset: Dataset) -> Any:
+        ny = dataset.ny
+        require_samples(dataset, 20, "pem")
+        candidates = self._candidates(ny)
+        if not candidates:
+            raise OptionError(
+                f"pem: order {self.order} leaves no state besides the {ny} integrator(s); "
+                f"use order >= {ny + 1}."
+            )
+        exps = [(e.u, e.y) for e in dataset.experiments]
+        sy = np.std(np.vstack([y for _, y in exps]), axis=0)
+        sy[~(sy > 0)] = 1.0
+        table: list[dict[str, Any]] = []
+        if len(candidates) == 1:
+            (n, integ), start = candidates[0], None
+        else:
+            n, integ, start = self._select(dataset, candidates, sy, table)
+        if start is None:
+            start = self._start(dataset, n, integ)
+        layout, theta = start
+        layout, theta = _with_experiments(layout, theta, len(exps))
+        theta, cost0, cost, nfev = _refine(layout, theta, exps, sy, self.max_iterations)
+        A, B, C, D, x0s, u0, y0 = _modal.to_state_space(layout, theta)
+        how = "given" if len(candidates) == 1 else "selected on held-out data"
+        notes = [
+            f"order {n}{' with ' + str(ny) + ' integrator(s)' if integ else ''} ({how})",
+            f"simulation-error refinement: normalised RMS {cost0:.4g} -> {cost:.4g} "
+            f"({nfev} evaluations)",
+        ]
+        rep = StateSpace(
+            A=A,
+            B=B,
+            C=C,
+            D=D,
+            x0=x0s[0],
+            u0=u0 if (self.offset and integ) else None,
+            y0=y0 if (self.offset and not integ) else None,
+        )
+        details: dict[str, Any] = {"candidates": table} if table else {}
+        cov = _covariance(layout, theta, exps, sy, rep)
+        if cov is not None:
+            details["covariance"] = cov
+        return build_model(self, dataset, rep, notes="; ".join(notes), details=details or None)
+
+    # ------------------------------------------------------------------------------------
+    def _start(self, data: Dataset, n: int, integ: bool) -> tuple[_modal.Layout, FloatArray]:
+        """The subspace model of order ``n`` (see the module notes), in modal coordinates."""
+        nu, ny = data.nu, data.ny
+        um = np.mean(np.vstack([e.u for e in data.experiments]), axis=0)
+        if not integ:
+            ym = np.mean(np.vstack([e.y for e in data.experiments]), axis=0)
+            if not self.offset:
+                um, ym = np.zeros(nu), np.zeros(ny)
+            centred = data.with_experiments(
+                [Experiment(t=e.t, u=e.u - um, y=e.y - ym, name=e.name) for e in data.experiments]
+            )
+            rep = N4SID(order=n, feedthrough=self.feedthrough).identify(centred).representation
+            A, B, C, D = rep.A, rep.B, rep.C, rep.D
+            # the centred inputs are deviations from um: fold it into y0 (stable A)
+            y0 = ym - (C @ np.linalg.solve(np.eye(n) - A, B) + D) @ um if self.offset else ym
+            x0s = [np.zeros(n) for _ in data.experiments]
+            layout, theta = _modal.from_state_space(
+                A, B, C, D, x0s, integrators=0, feedthrough=self.feedthrough,
+                output_offset=self.offset, input_offset=False, y0=y0, u0=np.zeros(nu),
+                radius=STABLE_RADIUS,
+            )  # fmt: skip
+        else:
+            dy = [np.diff(e.y, axis=0) for e in data.experiments]
+            vm = np.mean(np.vstack(dy), axis=0)
+            velocity = data.with_experiments(
+                [
+                    Experiment(t=e.t[:-1], u=e.u[:-1] - um, y=d - vm, name=e.name)
+                    for e, d in zip(data.experiments, dy, strict=True)
+                ]
+            )
+            n1 = n - ny
+            rep = N4SID(order=n1, feedthrough=True).identify(velocity).representation
+            A1, B1, C1, D1 = rep.A, rep.B, rep.C, rep.D
+            gain = C1 @ np.linalg.solve(np.eye(n1) - A1, B1) + D1
+            # u0 where the mean velocity is zero: gain (um - u0) = vm
+            u0 = um - np.linalg.lstsq(gain, vm, rcond=None)[0] if self.offset else np.zeros(nu)
+            A = np.block([[A1, np.zeros((n1, ny))], [C1, np.eye(ny)]])
+            B = np.vstack([B1, D1])
+            C = np.hstack([np.zeros((ny, n1)), np.eye(ny)])
+            x0s = [np.concatenate([np.zeros(n1), e.y[0]]) for e in data.experiments]
+            layout, theta = _modal.from_state_space(
+                A, B, C, np.zeros((ny, nu)), x0s, integrators=ny,
+                feedthrough=self.feedthrough, output_offset=False, input_offset=self.offset,
+                y0=np.zeros(ny), u0=u0, radius=STABLE_RADIUS,
+            )  # fmt: skip
+        exps = [(e.u, e.y) for e in data.experiments]
+        theta = _fit_initial_states(layout, theta, exps)
+        return layout, theta
+
+    def _select(
+        self,
+        data: Dataset,
+        candidates: list[tuple[int, bool]],
+        sy: FloatArray,
+        table: list[dict[str, Any]],
+    ) -> tuple[int, bool, None]:
+        """Blocked cross-validation: each candidate refined without one block, scored on it."""
+        folds = _folds(data, self.folds, self.init_window)
+        rows = []
+        family_best: dict[bool, float] = {}
+        worse: dict[bool, int] = {}
+        for n, integ in candidates:
+            if worse.get(integ, 0) >= STOP_AFTER:
+                table.append({"order": n, "integrator": integ, "skipped": True})
+                continue
+            try:
+                sq, count, est = 0.0, 0, []
+                for fit_data, held in folds:
+                    layout, theta = self._start(fit_data, n, integ)
+                    exps = [(e.u, e.y) for e in fit_data.experiments]
+                    theta, _, cost, _ = _refine(
+                        layout, theta, exps, sy, min(self.max_iterations, 50), SELECTION_TOL
+                    )
+                    est.append(cost)
+                    e2, c = _held_out(layout, theta, held, sy, self.init_window)
+                    sq, count = sq + e2, count + c
+            except (TendonkitError, np.linalg.LinAlgError) as exc:
+                table.append({"order": n, "integrator": integ, "error": str(exc).splitlines()[0]})
+                continue
+            val = float(np.sqrt(sq / count)) if np.isfinite(sq) else np.inf
+            row = {
+                "order": n,
+                "integrator": integ,
+                "parameters": layout.size - layout.n_exp * layout.n_states,
+                "estimation_rms": float(np.mean(est)),
+                "held_out_rms": val,
+            }
+            table.append(row)
+            rows.append((val, row["parameters"], n, integ))
+            # higher orders of a family stop once two in a row are far worse than its best
+            best_so_far = family_best.get(integ, np.inf)
+            family_best[integ] = min(best_so_far, val)
+            far = not val <= STOP_FACTOR * family_best[integ]
+            worse[integ] = worse.get(integ, 0) + 1 if far else 0
+        if not rows:
+            raise OptionError(
+                "pem: no candidate structure could be identified:",
+                [f"order {r['order']}: {r['error']}" for r in table],
+            )
+        top = min(r[0] for r in rows)
+        eligible = [r for r in rows if r[0] <= top * (1.0 + PARSIMONY)]
+        _, _, n, integ = min(eligible, key=lambda r: (r[1], r[0]))
+        for row in table:
+            row["selected"] = row.get("order") == n and row.get("integrator") == integ
+        return n, integ, None
+
+
+def _folds(data: Dataset, k: int, window: int) -> list[tuple[Dataset, list[Experiment]]]:
+    """``k`` folds: every experiment cut into ``k`` blocks; fold ``j`` holds block ``j`` out.
+
+    The remaining blocks of an experiment stay contiguous pieces (one or two), each its own
+    experiment with its own initial state.  Blocks too short to score after the
+    initialisation window are not held out.
+    """
+    out = []
+    for j in range(k):
+        fit, held = [], []
+        for e in data.experiments:
+            edges = np.linspace(0, e.n_samples, k + 1).round().astype(int)
+            a, b = int(edges[j]), int(edges[j + 1])
+            if b - a <= 2 * window:
+                fit.append(e)
+                continue
+            held.append(_piece(e, a, b))
+            fit += [_piece(e, s, t) for s, t in ((0, a), (b, e.n_samples)) if t - s >= 20]
+        if held and fit:
+            out.append((data.with_experiments(fit), held))
+    if not out:
+        raise OptionError(
+            f"pem: the experiments are too short to hold out blocks of {k} folds with an "
+            f"initialisation window of {window} samples; give the order and integrator."
+        )
+    return out
+
+
+def _piece(e: Experiment, a: int, b: int) -> Experiment:
+    return Experiment(t=e.t[a:b] - e.t[a], u=e.u[a:b], y=e.y[a:b], name=f"{e.name}[{a}:{b}]")
+
+
+def _held_out(
+    layout: _modal.Layout,
+    theta: FloatArray,
+    held: list[Experiment],
+    sy: FloatArray,
+    window: int,
+) -> tuple[float, int]:
+    """Sum of squared normalised errors (and their count) on the held-out blocks, each
+    simulated from the state estimated on its first ``window`` samples (the benchmark way)."""
+    A, B, C, D, _, u0, y0 = _modal.to_state_space(layout, theta)
+    rep = StateSpace(A=A, B=B, C=C, D=D, u0=u0, y0=y0)
+    sq, count = 0.0, 0
+    with np.errstate(all="ignore"):
+        for e in held:
+            x0 = estimate_x0(rep, e.u, e.y, window=window)
+            sim = state_space_response(A, B, C, D, e.u - u0, x0) + y0
+            err = (e.y[window:] - sim[window:]) / sy
+            sq += float(np.sum(err**2))
+            count += err.size
+    return (sq if np.isfinite(sq) else np.inf), count
+
+
+# -- the refinement -------------------------------------------------------------------------------
+
+
+def _with_experiments(
+    layout: _modal.Layout, theta: FloatArray, n_exp: int
+) -> tuple[_modal.Layout, FloatArray]:
+    """The same model with ``n_exp`` experiments (the estimation part had as many)."""
+    assert layout.n_exp == n_exp
+    return layout, theta
+
+
+def _residuals(
+    layout: _modal.Layout,
+    theta: FloatArray,
+    exps: list[tuple[FloatArray, FloatArray]],
+    sy: FloatArray,
+) -> FloatArray:
+    parts = [
+        ((y - _modal.simulate(layout, theta, u, k)) / sy).ravel() for k, (u, y) in enumerate(exps)
+    ]
+    return np.concatenate(parts)
+
+
+def _jac(
+    layout: _modal.Layout,
+    theta: FloatArray,
+    exps: list[tuple[FloatArray, FloatArray]],
+    sy: FloatArray,
+) -> FloatArray:
+    parts = [
+        (-_modal.jacobian(layout, theta, u, k) / sy[None, :, None]).reshape(-1, layout.size)
+        for k, (u, _) in enumerate(exps)
+    ]
+    return np.vstack(parts)
+
+
+def _refine(
+    layout: _modal.Layout,
+    theta: FloatArray,
+    exps: list[tuple[FloatArray, FloatArray]],
+    sy: FloatArray,
+    max_nfev: int,
+    tol: float = 1e-10,
+) -> tuple[FloatArray, float, float, int]:
+    """Trust-region least squares on the normalised simulation errors."""
+    # lazy: heavy (scipy.optimize)
+    from scipy.optimize import least_squares
+
+    lo, hi = _modal.bounds(layout, STABLE_RADIUS)
+    theta = np.clip(theta, lo, hi)
+    r0 = _residuals(layout, theta, exps, sy)
+    n_res = r0.size
+    with np.errstate(all="ignore"):
+        sol = least_squares(
+            lambda th: _residuals(layout, th, exps, sy),
+            theta,
+            jac=lambda th: _jac(layout, th, exps, sy),
+            bounds=(lo, hi),
+            method="trf",
+            x_scale="jac",
+            max_nfev=max_nfev,
+            ftol=tol,
+            xtol=tol,
+            gtol=tol,
+        )
+    before = float(np.sqrt(r0 @ r0 / n_res))
+    after = float(np.sqrt(sol.fun @ sol.fun / n_res))
+    if not np.isfinite(after) or after > before:
+        return theta, before, before, int(sol.nfev)
+    return np.asarray(sol.x), before, after, int(sol.nfev)
+
+
+def _fit_initial_states(
+    layout: _modal.Layout, theta: FloatArray, exps: list[tuple[FloatArray, FloatArray]]
+) -> FloatArray:
+    """Linear least squares for the initial states and offsets, all else fixed."""
+    sl = layout.slices
+    cols = [i for s in sl["s0"] + sl["y0"] for i in range(s.start, s.stop)]
+    if not cols:
+        return theta
+    theta = theta.copy()
+    J = np.vstack(
+        [
+            _modal.jacobian(layout, theta, u, k).reshape(-1, layout.size)
+            for k, (u, _) in enumerate(exps)
+        ]
+    )[:, cols]
+    r = np.concatenate(
+        [(y - _modal.simulate(layout, theta, u, k)).ravel() for k, (u, y) in enumerate(exps)]
+    )
+    step, *_ = np.linalg.lstsq(J, r, rcond=None)
+    if np.all(np.isfinite(step)):
+        theta[cols] += step
+    return theta
+
+
+def _covariance(
+    layout: _modal.Layout,
+    theta: FloatArray,
+    exps: list[tuple[FloatArray, FloatArray]],
+    sy: FloatArray,
+    rep: StateSpace,
+) -> dict[str, Any] | None:
+    """Gauss–Newton covariance ``λ (JᵀJ)⁺`` mapped to the entries of ``rep`` that vary.
+
+    ``J`` is the Jacobian of the normalised simulation errors at the optimum and ``λ`` their
+    variance; the map from the modal parameters to the stored matrices is differentiated
+    numerically (it involves no simulation).  The initial states are left out.
+    """
+    J = _jac(layout, theta, exps, sy)
+    r = _residuals(layout, theta, exps, sy)
+    s = np.linalg.svd(J, compute_uv=False)
+    rank = int(np.sum(s > 1e-10 * s[0])) if s.size and s[0] > 0 else 0
+    if rank == 0 or r.size <= rank:
+        return None
+    lam = float(r @ r) / (r.size - rank)
+    cov_theta = lam * np.linalg.pinv(J.T @ J, rcond=1e-10, hermitian=True)
+    sl = layout.slices
+    s0 = {i for part in sl["s0"] for i in range(part.start, part.stop)}
+    free = [i for i in range(layout.size) if i not in s0]
+    keys = [("A", rep.A), ("B", rep.B), ("C", rep.C), ("D", rep.D)]
+    if rep.u0 is not None:
+        keys.append(("u0", rep.u0))
+    if rep.y0 is not None:
+        keys.append(("y0", rep.y0))
+    names = [
+        f"{k}[{','.join(str(i) for i in idx)}]" for k, arr in keys for idx in np.ndindex(arr.shape)
+    ]
+
+    def flat(th: FloatArray) -> FloatArray:
+        A, B, C, D, _, u0, y0 = _modal.to_state_space(layout, th)
+        parts = {"A": A, "B": B, "C": C, "D": D, "u0": u0, "y0": y0}
+        return np.concatenate([parts[k].ravel() for k, _ in keys])
+
+    T = np.empty((len(names), len(free)))
+    for c, i in enumerate(free):
+        h = 1e-7 * max(abs(theta[i]), 1e-3)
+        up, down = theta.copy(), theta.copy()
+        up[i] += h
+        down[i] -= h
+        T[:, c] = (flat(up) - flat(down)) / (2 * h)
+    keep = np.flatnonzero(np.any(np.abs(T) > 1e-12, axis=1))
+    Tk = T[keep]
+    cov = Tk @ cov_theta[np.ix_(free, free)] @ Tk.T
+    return {
+        "parameters": [names[i] for i in keep],
+        "matrix": cov.tolist(),
+        "noise_variance": lam,
+    }
+
+
+def _is_int(v: object) -> bool:
+    return isinstance(v, int | np.integer) and not isinstance(v, bool | np.bool_)
+
+
+@hookimpl
+def tendonkit_register_identifiers(registry):  # type: ignore[no-untyped-def]
+    """Register the prediction-error identifier."""
+    registry.add(PEM)

@@ -1,0 +1,171 @@
+"""The prediction-error identifier: exact Jacobian, offsets, integrators, structure selection."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import tendonkit as tk
+from tendonkit.compare import compare
+from tendonkit.dataset import Dataset, Experiment
+from tendonkit.errors import OptionError
+from tendonkit.plugins import _modal
+from tendonkit.plugins.pem import PEM
+from tendonkit.realize import fold_offsets
+from tendonkit.schema import Model, Signal, StateSpace
+from tendonkit.simulate import simulate
+from tendonkit.stepper import Stepper
+from tendonkit.testsystems import random_state_space, simulate_truth
+
+
+def _data(u: np.ndarray, y: np.ndarray, dt: float = 0.01, splits: int = 1) -> Dataset:
+    exps = []
+    for k, (uu, yy) in enumerate(zip(np.array_split(u, splits), np.array_split(y, splits))):
+        t = np.arange(len(uu)) * dt
+        exps.append(Experiment(t=t, u=uu, y=yy, name=f"e{k}"))
+    names_u = tuple(f"u{j + 1}" for j in range(u.shape[1]))
+    names_y = tuple(f"y{j + 1}" for j in range(y.shape[1]))
+    return Dataset(inputs=names_u, outputs=names_y, experiments=tuple(exps), dt=dt)
+
+
+def _model(rep: StateSpace, nu: int, ny: int) -> Model:
+    return Model(
+        name="truth",
+        dt=0.01,
+        inputs=tuple(Signal(f"u{j + 1}") for j in range(nu)),
+        outputs=tuple(Signal(f"y{j + 1}") for j in range(ny)),
+        representation=rep,
+    )
+
+
+@pytest.mark.parametrize("integrator", [False, True])
+def test_jacobian_is_exact(integrator: bool) -> None:
+    """The analytic Jacobian equals central differences (every parameter group)."""
+    data, _ = simulate_truth(random_state_space(4, 2, 1, seed=3), 300, noise=0.01)
+    opts = PEM(order=4, integrator=integrator, feedthrough=True)
+    layout, theta = opts._start(data, 4, integrator)
+    assert ("integrator" in layout.kinds) == integrator
+    u = data.experiments[0].u
+    J = _modal.jacobian(layout, theta, u, 0)
+    eps = 1e-6
+    num = np.zeros_like(J)
+    for i in range(theta.size):
+        d = np.zeros_like(theta)
+        d[i] = eps
+        num[:, :, i] = (
+            _modal.simulate(layout, theta + d, u, 0) - _modal.simulate(layout, theta - d, u, 0)
+        ) / (2 * eps)
+    assert np.max(np.abs(J - num)) < 1e-7 * np.max(np.abs(J))
+
+
+def test_offsets_recovered_and_undone() -> None:
+    """A stable plant with a sensor offset: y0 is found, stored, and used by every consumer."""
+    rng = np.random.default_rng(0)
+    truth = random_state_space(3, 1, 1, seed=5)
+    u = rng.normal(size=(3000, 1))
+    y = simulate(truth, u, initial="zero") + 2.5
+    model = tk.identify(_data(u, y), "pem", order=3, integrator=False)
+    rep = model.representation
+    assert isinstance(rep, StateSpace) and rep.y0 is not None
+    assert model.provenance.training_fit["y1"] > 99.9
+    # simulation adds y0; a model without it is far off
+    sim = simulate(model, u, y=y, initial="estimate")
+    assert np.max(np.abs(sim - y)) < 1e-2 * np.ptp(y)
+    # the stepper (FMUs, MPC) carries the offset on a constant state: same outputs
+    st = Stepper(model)
+    stepped = np.array([st.step(u[k]) for k in range(200)])
+    assert np.allclose(stepped, simulate(model, u[:200], initial="model"), atol=1e-9)
+    # written and read back, unchanged
+    again = Model.from_dict(model.to_dict())
+    assert np.array_equal(again.representation.y0, rep.y0)
+
+
+def test_integrating_plant_with_input_offset() -> None:
+    """Velocity driven by (u - u0), position integrated: found, and held-out simulation stays on."""
+    rng = np.random.default_rng(1)
+    n = 4000
+    u = np.cumsum(rng.normal(size=(n, 1)), axis=0) * 0.05
+    u = u - u.mean() + rng.normal(size=(n, 1))
+    u0 = 0.3
+    v = np.zeros(n)
+    q = np.zeros(n)
+    for k in range(n - 1):
+        v[k + 1] = 0.9 * v[k] + 0.1 * (u[k, 0] - u0)
+        q[k + 1] = q[k] + 0.01 * v[k]
+    y = q[:, None] + 1e-4 * rng.normal(size=(n, 1))
+    model = tk.identify(_data(u, y), "pem", order=2, integrator=True)
+    rep = model.representation
+    assert isinstance(rep, StateSpace) and rep.u0 is not None
+    assert abs(float(rep.u0[0]) - u0) < 0.01
+    assert np.sum(np.isclose(np.linalg.eigvals(rep.A), 1.0, atol=1e-12)) == 1
+    assert model.provenance.training_fit["y1"] > 99.0
+
+
+def test_structure_selection_finds_the_order_and_records_it() -> None:
+    """order=None: the true order of a clean system wins on held-out data; the table is stored."""
+    data, _ = simulate_truth(random_state_space(3, 1, 1, seed=11), 3000, noise=0.001, seed=2)
+    model = PEM(max_order=5, integrator=False).identify(data)
+    assert model.representation.n_states == 3
+    table = model.provenance.details["candidates"]
+    assert [r["order"] for r in table] == [1, 2, 3, 4, 5]
+    assert [r["order"] for r in table if r.get("selected")] == [3]
+    assert table[0]["held_out_rms"] > 10 * table[2]["held_out_rms"]
+
+
+def test_no_regression_on_the_bench_system() -> None:
+    """The 4-input 2-output order-8 bench system: pem at the noise ceiling, like n4sid."""
+    truth = random_state_space(8, 4, 2, seed=0)
+    train, _ = simulate_truth(truth, 4000, noise=0.01, seed=1)
+    val, _ = simulate_truth(truth, 4000, noise=0.01, seed=2)
+    model = PEM(order=8, integrator=False).identify(train)
+    ceiling = compare([truth], val)["models"][0]["fit"]
+    fit = compare([model], val)["models"][0]["fit"]
+    for name in ceiling:
+        assert fit[name] > ceiling[name] - 0.5
+
+
+def test_bad_options_listed_together() -> None:
+    with pytest.raises(OptionError) as info:
+        PEM(order=0, integrator="maybe", folds=1, init_window=0, max_iterations=0)  # type: ignore[arg-type]
+    text = str(info.value)
+    for key in ("order", "integrator", "folds", "init_window", "max_iterations"):
+        assert key in text
+
+
+def test_offsets_in_folded_and_terms_paths_agree() -> None:
+    """fold_offsets gives the same outputs from the stored state; prediction uses deviations."""
+    rng = np.random.default_rng(3)
+    A = np.array([[0.9, 0.1], [0.0, 0.7]])
+    rep = StateSpace(
+        A, np.array([[1.0], [0.5]]), np.array([[1.0, 0.3]]), np.zeros((1, 1)),
+        x0=np.array([0.2, -0.1]), u0=np.array([0.4]), y0=np.array([2.0]),
+    )  # fmt: skip
+    m = _model(rep, 1, 1)
+    u = rng.normal(size=(300, 1))
+    y = simulate(m, u, initial="model")
+    folded = _model(fold_offsets(rep), 1, 1)
+    assert np.allclose(simulate(folded, u, initial="model"), y, atol=1e-12)
+    assert np.allclose(simulate(m, u, y=y, initial="estimate"), y, atol=1e-9)
+    assert np.allclose(tk.predict(m, u, y, 3)[10:], y[10:], atol=1e-9)
+
+
+def test_mpc_prediction_model_carries_the_operating_point() -> None:
+    """Linear MPC on a model with u0 and y0: the constant it adds is y0 - G(1) u0 (stable),
+    and an integrator with an input offset is refused with a clear message."""
+    from tendonkit.errors import OptionError as Refused
+    from tendonkit.mpc.linear import prediction_model
+
+    A = np.array([[0.5]])
+    rep = StateSpace(A, np.array([[1.0]]), np.array([[2.0]]), np.zeros((1, 1)),
+                     u0=np.array([0.3]), y0=np.array([1.0]))  # fmt: skip
+    lp = prediction_model(_model(rep, 1, 1), reduce="none")
+    assert np.allclose(lp.y_const, 1.0 - 2.0 * 1.0 / 0.5 * 0.3)
+    u = np.full((200, 1), 0.7)
+    y = simulate(_model(rep, 1, 1), u, initial="zero")
+    x = np.zeros(1)
+    for k in range(200):  # the prediction model's own recursion reproduces simulate
+        assert np.allclose(lp.C @ x + lp.D @ u[k] + lp.y_const, y[k], atol=1e-9 + 0.5**k * 10)
+        x = lp.A @ x + lp.B @ u[k]
+    integ = StateSpace(np.eye(1), np.eye(1), np.eye(1), np.zeros((1, 1)), u0=np.array([0.1]))
+    with pytest.raises(Refused, match="integrator"):
+        prediction_model(_model(integ, 1, 1), reduce="none")

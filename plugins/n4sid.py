@@ -98,6 +98,11 @@ class N4SID:
         squares on the output-normalised errors, in a state basis scaled to unit state
         variance, keeping ``A`` stable; the subspace model is kept if the refinement does not
         lower the error.  The Kalman gain stays the subspace one.
+    offset : bool
+        Identify the dynamics of the deviations from the mean input and output and store
+        that operating point in the model (``u0``, ``y0``: undone in simulation); otherwise
+        the signals are used as they are (a level the dynamics do not produce is then fitted
+        by the initial state only).  For integrating plants use ``pem``.
 
     Examples
     --------
@@ -121,6 +126,7 @@ class N4SID:
     feedthrough: bool = False
     estimate_x0: bool = True
     refine: bool = False
+    offset: bool = False
 
     def __post_init__(self) -> None:
         p: list[str] = []
@@ -132,7 +138,7 @@ class N4SID:
             )
         if not _is_int(self.max_order) or self.max_order < 1:
             p.append(f"max_order must be an integer >= 1, found {self.max_order!r}.")
-        for key in ("stable", "feedthrough", "estimate_x0", "refine"):
+        for key in ("stable", "feedthrough", "estimate_x0", "refine", "offset"):
             if not isinstance(getattr(self, key), bool | np.bool_):
                 p.append(f"{key} must be true or false, found {getattr(self, key)!r}.")
         if p:
@@ -170,6 +176,11 @@ class N4SID:
                 f"{rows} rows (2·horizon·(inputs + outputs)); at least {rows} columns are needed."
             )
         exps = [(e.u, e.y) for e in dataset.experiments]
+        u0 = y0 = None
+        if self.offset:  # deviations from the operating point (the means of all experiments)
+            u0 = np.mean(np.vstack([u for u, _ in exps]), axis=0)
+            y0 = np.mean(np.vstack([y for _, y in exps]), axis=0)
+            exps = [(u - u0, y - y0) for u, y in exps]
         su = _rms([u for u, _ in exps], nu)
         sy = _rms([y for _, y in exps], ny)
 
@@ -208,8 +219,9 @@ class N4SID:
         if K is None:
             notes.append("no Kalman gain (singular noise covariance)")
         notes.append("singular values " + " ".join(f"{v:.4g}" for v in sv[: min(len(sv), n + 4)]))
-        rep = StateSpace(A=A, B=B, C=C, D=D, x0=x0, K=K)
-        return build_model(self, dataset, rep, notes="; ".join(notes))
+        rep = StateSpace(A=A, B=B, C=C, D=D, x0=x0, K=K, u0=u0, y0=y0)
+        details = {"singular_values": [float(v) for v in sv], "order": int(n)}
+        return build_model(self, dataset, rep, notes="; ".join(notes), details=details)
 
 
 def _refine(

@@ -27,7 +27,9 @@ Algorithm:
    not; they never see what goes wrong in use — a slow mode that drifts over a long free
    run, or states that a short window cannot fix (the EMPS position: orders above two fit
    the training data better and drift off on held-out blocks by orders of magnitude).
-   The candidate with the lowest held-out error wins (the cross-validation itself charges a
+   Integrating candidates are tried only when the best stable one has a mode that does not
+   decay to 1/e over the shortest record (such a pole cannot be told from an integrator by
+   these data).  The candidate with the lowest held-out error wins (the cross-validation itself charges a
    model for parameters that do not predict held-out data); a smaller one within 0.1 % of
    it — below what the candidates' refinement tolerance resolves — is preferred.  A family (with or without integrators) stops growing after two consecutive
    orders more than ten times worse than its best.  The winner is identified again on the
@@ -61,7 +63,12 @@ from numpy.typing import NDArray
 from tendonkit.dataset import Dataset, Experiment
 from tendonkit.errors import OptionError, TendonkitError
 from tendonkit.hookspecs import hookimpl
-from tendonkit.identification import build_model, one_blas_thread, require_samples
+from tendonkit.identification import (
+    build_model,
+    one_blas_thread,
+    require_samples,
+    without_training_fit,
+)
 from tendonkit.plugins import _modal
 from tendonkit.plugins.n4sid import N4SID
 from tendonkit.schema import StateSpace
@@ -223,7 +230,8 @@ class PEM:
             centred = data.with_experiments(
                 [Experiment(t=e.t, u=e.u - um, y=e.y - ym, name=e.name) for e in data.experiments]
             )
-            rep = N4SID(order=n, feedthrough=self.feedthrough).identify(centred).representation
+            with without_training_fit():
+                rep = N4SID(order=n, feedthrough=self.feedthrough).identify(centred).representation
             A, B, C, D = rep.A, rep.B, rep.C, rep.D
             # the centred inputs are deviations from um: fold it into y0 (stable A)
             y0 = ym - (C @ np.linalg.solve(np.eye(n) - A, B) + D) @ um if self.offset else ym
@@ -243,7 +251,8 @@ class PEM:
                 ]
             )
             n1 = n - ny
-            rep = N4SID(order=n1, feedthrough=True).identify(velocity).representation
+            with without_training_fit():
+                rep = N4SID(order=n1, feedthrough=True).identify(velocity).representation
             A1, B1, C1, D1 = rep.A, rep.B, rep.C, rep.D
             gain = C1 @ np.linalg.solve(np.eye(n1) - A1, B1) + D1
             # u0 where the mean velocity is zero: gain (um - u0) = vm
@@ -269,14 +278,31 @@ class PEM:
         table: list[dict[str, Any]],
     ) -> tuple[int, bool, None]:
         """Blocked cross-validation: each candidate refined without one block, scored on it."""
+        # lazy: heavy (tqdm)
+        from tqdm import tqdm
+
         folds = _folds(data, self.folds, self.init_window)
-        rows = []
+        # every candidate is identified once per fold: minutes on long records, so a bar
+        # (tqdm's own rule: shown on a terminal, silent in pipes, logs and tests)
+        bar = tqdm(
+            total=len(candidates) * len(folds), desc="pem: structure selection", unit="fit",
+            disable=None, leave=False,
+        )  # fmt: skip
+        rows: list[tuple[float, int, int, bool]] = []
         family_best: dict[bool, float] = {}
         worse: dict[bool, int] = {}
+        slow: dict[int, float] = {}  # stable candidates: the largest pole modulus over folds
+        shortest = min(e.n_samples for e in data.experiments)
+        screened: str | None = None
         for n, integ in candidates:
-            if worse.get(integ, 0) >= STOP_AFTER:
-                table.append({"order": n, "integrator": integ, "skipped": True})
+            if integ and self.integrator is None and screened is None:
+                screened = _integrator_screen(rows, slow, shortest)
+            if worse.get(integ, 0) >= STOP_AFTER or (integ and screened):
+                why = screened if integ and screened else "higher orders diverged"
+                table.append({"order": n, "integrator": integ, "skipped": why})
+                bar.update(len(folds))
                 continue
+            bar.set_postfix_str(f"order {n}{' + integrator' if integ else ''}")
             try:
                 sq, count, est = 0.0, 0, []
                 for fit_data, held in folds:
@@ -286,8 +312,12 @@ class PEM:
                         layout, theta, exps, sy, min(self.max_iterations, 50), SELECTION_TOL
                     )
                     est.append(cost)
+                    if not integ:
+                        radius = float(np.max(np.abs(_modal.decode(layout, theta).p), initial=0))
+                        slow[n] = max(slow.get(n, 0.0), radius)
                     e2, c = _held_out(layout, theta, held, sy, self.init_window)
                     sq, count = sq + e2, count + c
+                    bar.update()
             except (TendonkitError, np.linalg.LinAlgError) as exc:
                 table.append({"order": n, "integrator": integ, "error": str(exc).splitlines()[0]})
                 continue
@@ -306,6 +336,7 @@ class PEM:
             family_best[integ] = min(best_so_far, val)
             far = not val <= STOP_FACTOR * family_best[integ]
             worse[integ] = worse.get(integ, 0) + 1 if far else 0
+        bar.close()
         if not rows:
             raise OptionError(
                 "pem: no candidate structure could be identified:",
@@ -317,6 +348,28 @@ class PEM:
         for row in table:
             row["selected"] = row.get("order") == n and row.get("integrator") == integ
         return n, integ, None
+
+
+def _integrator_screen(
+    rows: list[tuple[float, int, int, bool]], slow: dict[int, float], length: int
+) -> str | None:
+    """Why integrators need not be tried, or ``None`` when they must.
+
+    A pole whose mode has not decayed to 1/e over the shortest record cannot be told from an
+    integrator by these data; only then is an integrating structure a candidate.  The best
+    stable candidate is asked (its slowest pole over the folds).
+    """
+    stable = [r for r in rows if not r[3]]
+    if not stable:
+        return None
+    best = min(stable, key=lambda r: r[0])
+    radius = slow.get(best[2], 1.0)
+    if radius <= 0.0 or radius**length < np.exp(-1.0):
+        return (
+            f"not tried: the best stable model's slowest mode (pole {radius:.6g}) decays "
+            f"within the {length}-sample record"
+        )
+    return None
 
 
 def _folds(data: Dataset, k: int, window: int) -> list[tuple[Dataset, list[Experiment]]]:

@@ -15,7 +15,13 @@ import numpy as np
 
 from .dataset import Dataset
 from .errors import DataError
-from .figures import plot_band, plot_bode, plot_outputs, plot_structure_selection
+from .figures import (
+    plot_band,
+    plot_bode,
+    plot_outputs,
+    plot_singular_values,
+    plot_structure_selection,
+)
 from .frequency import empirical_response, model_response
 from .metrics import FitRow, fit, fit_table
 from .predict import predict
@@ -240,6 +246,10 @@ def plot_compare(
         table = model.provenance.details.get("candidates")
         if table:  # the identifier selected the structure: show how
             paths.append(str(plot_structure_selection(out, str(name), table)))
+        sv = model.provenance.details.get("singular_values")
+        if sv:  # a subspace model: the singular values its order was read from
+            order = int(model.provenance.details.get("order", 0))
+            paths.append(str(plot_singular_values(out, str(name), sv, order)))
         if covariance(model) is not None and initial in ("estimate", "zero", "model"):
             bands = [
                 simulate_band(model, e.u, e.y, initial=initial, init_window=init_window)

@@ -123,6 +123,21 @@ def plot_structure_selection(
     return _save(fig, out_dir / f"structure_{_slug(name)}.png")
 
 
+def plot_singular_values(out_dir: Path, name: str, values: Sequence[float], order: int) -> Path:
+    """The subspace step's singular values (log scale) with the chosen order marked."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(7, 4))
+    k = np.arange(1, len(values) + 1)
+    ax.semilogy(k, values, "o-", label="singular values")
+    ax.axvline(order + 0.5, color="red", ls="--", label=f"order {order}")
+    ax.set_xlabel("index")
+    ax.set_ylabel("singular value [-]")
+    ax.set_title(f"Subspace singular values: {name}")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=8)
+    return _save(fig, out_dir / f"singular_values_{_slug(name)}.png")
+
+
 def plot_band(
     out_dir: Path,
     name: str,

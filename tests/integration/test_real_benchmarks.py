@@ -54,7 +54,7 @@ def _unmet(reason: str) -> Any:
 
 ROWS = [
     # dataset, test, identifier, options, published best linear (in the data's unit)
-    pytest.param("EMPS", "EMPS", "pem", {}, 5.53e-3, id="EMPS-pem"),
+    pytest.param("EMPS", "EMPS", "pem", {}, 5.53e-3, id="EMPS-pem"),  # selection included
     pytest.param("Coupled electric drives", "CED low", "arx", {}, 0.224, id="CED-low-arx"),
     pytest.param(
         "Bouc-Wen",

@@ -80,20 +80,24 @@ def test_offsets_recovered_and_undone() -> None:
     assert np.array_equal(again.representation.y0, rep.y0)
 
 
-def test_integrating_plant_with_input_offset() -> None:
-    """Velocity driven by (u - u0), position integrated: found, and held-out simulation stays on."""
+def _integrating_plant(n: int = 4000, u0: float = 0.3) -> Dataset:
+    """Velocity driven by (u - u0) through a first-order lag, position integrated."""
     rng = np.random.default_rng(1)
-    n = 4000
     u = np.cumsum(rng.normal(size=(n, 1)), axis=0) * 0.05
     u = u - u.mean() + rng.normal(size=(n, 1))
-    u0 = 0.3
     v = np.zeros(n)
     q = np.zeros(n)
     for k in range(n - 1):
         v[k + 1] = 0.9 * v[k] + 0.1 * (u[k, 0] - u0)
         q[k + 1] = q[k] + 0.01 * v[k]
     y = q[:, None] + 1e-4 * rng.normal(size=(n, 1))
-    model = tk.identify(_data(u, y), "pem", order=2, integrator=True)
+    return _data(u, y)
+
+
+def test_integrating_plant_with_input_offset() -> None:
+    """Velocity driven by (u - u0), position integrated: found, and held-out simulation stays on."""
+    u0 = 0.3
+    model = tk.identify(_integrating_plant(u0=u0), "pem", order=2, integrator=True)
     rep = model.representation
     assert isinstance(rep, StateSpace) and rep.u0 is not None
     assert abs(float(rep.u0[0]) - u0) < 0.01
@@ -169,3 +173,19 @@ def test_mpc_prediction_model_carries_the_operating_point() -> None:
     integ = StateSpace(np.eye(1), np.eye(1), np.eye(1), np.zeros((1, 1)), u0=np.array([0.1]))
     with pytest.raises(Refused, match="integrator"):
         prediction_model(_model(integ, 1, 1), reduce="none")
+
+
+def test_integrators_are_tried_only_where_a_mode_outlasts_the_record() -> None:
+    """integrator=None: on a stable plant the integrating family is skipped and says why; on
+    an integrating plant it is tried, and an integrating structure wins."""
+    data, _ = simulate_truth(random_state_space(2, 1, 1, seed=11), 2000, noise=0.001, seed=2)
+    stable = PEM(max_order=3).identify(data).provenance.details["candidates"]
+    skipped = [r for r in stable if r["integrator"]]
+    assert skipped and all("decays within the 2000-sample record" in r["skipped"] for r in skipped)
+    model = PEM(max_order=3).identify(_integrating_plant())
+    table = model.provenance.details["candidates"]
+    assert any(r["integrator"] and "held_out_rms" in r for r in table)
+    chosen = next(r for r in table if r["selected"])
+    assert (chosen["order"], chosen["integrator"]) == (2, True)
+    best_stable = min(r["held_out_rms"] for r in table if not r["integrator"])
+    assert best_stable > 1000 * chosen["held_out_rms"]  # a stable model drifts off

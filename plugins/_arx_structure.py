@@ -117,28 +117,15 @@ def _one_step_loss(model: Any, data: Dataset, lag: int) -> float:
 
 
 def _folds(data: Dataset, window: int) -> list[tuple[Dataset, list[Experiment]]]:
-    out = []
-    for j in range(FOLDS):
-        fit, held = [], []
-        for e in data.experiments:
-            edges = np.linspace(0, e.n_samples, FOLDS + 1).round().astype(int)
-            a, b = int(edges[j]), int(edges[j + 1])
-            if b - a <= 2 * window:
-                fit.append(e)
-                continue
-            held.append(_piece(e, a, b))
-            fit += [_piece(e, s, t) for s, t in ((0, a), (b, e.n_samples)) if t - s > window]
-        if held and fit:
-            out.append((data.with_experiments(fit), held))
+    """:meth:`Dataset.blocked_folds` with pieces long enough for the window's history."""
+    out = [
+        (f, list(h.experiments)) for f, h in data.blocked_folds(FOLDS, 2 * window + 1, window + 1)
+    ]
     if not out:
         raise OptionError(
             "arx: the experiments are too short for the cross-validation of orders; give na and nb."
         )
     return out
-
-
-def _piece(e: Experiment, a: int, b: int) -> Experiment:
-    return Experiment(t=e.t[a:b] - e.t[a], u=e.u[a:b], y=e.y[a:b], name=f"{e.name}[{a}:{b}]")
 
 
 def _held_out(options: Any, folds: list[tuple[Dataset, list[Experiment]]], window: int) -> float:

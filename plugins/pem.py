@@ -373,35 +373,14 @@ def _integrator_screen(
 
 
 def _folds(data: Dataset, k: int, window: int) -> list[tuple[Dataset, list[Experiment]]]:
-    """``k`` folds: every experiment cut into ``k`` blocks; fold ``j`` holds block ``j`` out.
-
-    The remaining blocks of an experiment stay contiguous pieces (one or two), each its own
-    experiment with its own initial state.  Blocks too short to score after the
-    initialisation window are not held out.
-    """
-    out = []
-    for j in range(k):
-        fit, held = [], []
-        for e in data.experiments:
-            edges = np.linspace(0, e.n_samples, k + 1).round().astype(int)
-            a, b = int(edges[j]), int(edges[j + 1])
-            if b - a <= 2 * window:
-                fit.append(e)
-                continue
-            held.append(_piece(e, a, b))
-            fit += [_piece(e, s, t) for s, t in ((0, a), (b, e.n_samples)) if t - s >= 20]
-        if held and fit:
-            out.append((data.with_experiments(fit), held))
+    """:meth:`Dataset.blocked_folds`, held-out blocks long enough to score after the window."""
+    out = [(f, list(h.experiments)) for f, h in data.blocked_folds(k, 2 * window + 1, 20)]
     if not out:
         raise OptionError(
             f"pem: the experiments are too short to hold out blocks of {k} folds with an "
             f"initialisation window of {window} samples; give the order and integrator."
         )
     return out
-
-
-def _piece(e: Experiment, a: int, b: int) -> Experiment:
-    return Experiment(t=e.t[a:b] - e.t[a], u=e.u[a:b], y=e.y[a:b], name=f"{e.name}[{a}:{b}]")
 
 
 def _held_out(

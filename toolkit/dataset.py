@@ -264,6 +264,34 @@ class Dataset:
             b.append(_slice(e, slice(k, None), f"{e.name}[valid]"))
         return self.with_experiments(a), self.with_experiments(b)
 
+    def blocked_folds(self, k: int, min_held: int, min_piece: int) -> list[tuple[Dataset, Dataset]]:
+        """Blocked cross-validation folds in time: ``(fit, held)`` pairs.
+
+        Every experiment is cut into ``k`` contiguous blocks; fold ``j`` holds block ``j`` of
+        every experiment out (blocks shorter than ``min_held`` samples stay in), and fits on
+        the rest: the pieces before and after the block, each its own experiment (pieces
+        shorter than ``min_piece`` are dropped).  Folds with nothing held out or nothing to
+        fit are left out, so the list may be empty.
+        """
+        out = []
+        for j in range(k):
+            fit, held = [], []
+            for e in self.experiments:
+                edges = np.linspace(0, e.n_samples, k + 1).round().astype(int)
+                a, b = int(edges[j]), int(edges[j + 1])
+                if b - a < min_held:
+                    fit.append(e)
+                    continue
+                held.append(_slice(e, slice(a, b), f"{e.name}[{a}:{b}]"))
+                fit += [
+                    _slice(e, slice(s0, s1), f"{e.name}[{s0}:{s1}]")
+                    for s0, s1 in ((0, a), (b, e.n_samples))
+                    if s1 - s0 >= min_piece
+                ]
+            if held and fit:
+                out.append((self.with_experiments(fit), self.with_experiments(held)))
+        return out
+
     def with_experiments(self, experiments: Iterable[Experiment]) -> Dataset:
         """A dataset with the same signals and other experiments."""
         return Dataset(

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+import tendonkit as tk
 from tendonkit.dataset import Dataset, write_csv
 from tendonkit.errors import DataError
 
@@ -94,3 +95,26 @@ def test_write_csv_round_trip(tmp_path):
     p = write_csv(tmp_path / "x.csv", cols)
     ds = Dataset.from_csv(p, ["u"], ["y"])
     np.testing.assert_array_equal(ds.experiments[0].y[:, 0], cols["y"])  # %.17g is exact
+
+
+def test_blocked_folds_hold_each_block_out_once_and_fit_on_the_rest():
+    rng = np.random.default_rng(0)
+    long = tk.Dataset.from_arrays(rng.normal(size=(100, 1)), rng.normal(size=(100, 1)), 0.1,
+                                  ["u"], ["y"])  # fmt: skip
+    data = long.with_experiments([long.experiments[0], _cut(long.experiments[0], 30)])
+    folds = data.blocked_folds(4, min_held=10, min_piece=5)
+    assert len(folds) == 4
+    for j, (fit, held) in enumerate(folds):
+        # the 100-sample record's block j is held out; the 30-sample one's blocks are too short
+        assert [e.n_samples for e in held.experiments] == [25]
+        h = held.experiments[0]
+        assert np.array_equal(h.u, data.experiments[0].u[25 * j : 25 * (j + 1)])
+        pieces = [e for e in fit.experiments if e.n_samples != 30]
+        assert sum(e.n_samples for e in pieces) == 75  # before and after the block
+        held_t = set(np.round(h.t, 9))
+        assert all(not held_t & set(np.round(e.t, 9)) for e in pieces)
+    assert data.blocked_folds(4, min_held=40, min_piece=5) == []
+
+
+def _cut(e, n):
+    return tk.Experiment(t=e.t[:n], u=e.u[:n], y=e.y[:n], name="short")

@@ -39,7 +39,7 @@ def select(
     nu = data.nu
     record: dict[str, Any] = {}
     if options.nk == "auto":
-        nk, losses = _delays(options, data)
+        nk, losses = estimate_delays(options, data)
         record["delays"] = losses
     else:
         nk = _tuple(options.nk, nu)
@@ -85,7 +85,11 @@ def _tuple(v: Any, n: int) -> tuple[int, ...]:
     return tuple(v) if isinstance(v, tuple | list) else (int(v),) * n
 
 
-def _delays(options: Any, data: Dataset) -> tuple[tuple[int, ...], list[dict[str, Any]]]:
+def estimate_delays(options: Any, data: Dataset) -> tuple[tuple[int, ...], list[dict[str, Any]]]:
+    """Each input's delay by ``delayest``'s procedure (module notes), and the losses.
+
+    ``options`` is an ARX options object (its ``max_delay`` and ``ridge`` are used).
+    """
     nu = data.nu
     nk = [1] * nu
     record = []
@@ -103,7 +107,7 @@ def _delays(options: Any, data: Dataset) -> tuple[tuple[int, ...], list[dict[str
             except TendonkitError:
                 losses.append(np.inf)
                 continue
-            losses.append(_one_step_loss(model, data, 2 + d + 1))
+            losses.append(_one_step_loss(model, data, 2 + options.max_delay + 1))
         best = min(losses)
         nk[m] = next(d for d, v in enumerate(losses) if v <= best * (1.0 + 1e-3))
         record.append({"input": data.inputs[m], "loss_by_delay": losses, "delay": nk[m]})

@@ -12,12 +12,16 @@ Algorithm:
    ``integrator`` the subspace model is identified from the *differenced* outputs (a
    velocity model, with feedthrough) and completed by one pure integrator per output,
    ``q[k+1] = q[k] + v[k]``; the input offset ``u0`` starts where the mean velocity is zero.
-2. **Refinement.**  The model is written in modal coordinates (:mod:`._modal`): one
+2. **Delays and feedthrough** (``delay``/``feedthrough`` ``None``): each input's delay by
+   ``delayest``'s procedure (:func:`tendonkit.plugins._arx_structure.estimate_delays`); an
+   input without delay gets feedthrough, a delay of more than one sample becomes an input
+   ``delay`` block of the model and the state space is identified on the delayed inputs.
+3. **Refinement.**  The model is written in modal coordinates (:mod:`._modal`): one
    first-order recursion per real pole, per complex pair and per integrator.  Stability is a
    bound on the poles (``|p| <= 1 - 1e-6``; integrators stay at exactly 1), and the Jacobian
    is exact and costs a few compiled filters per mode.  :func:`scipy.optimize.least_squares`
    (trust-region reflective, Jacobian-scaled) minimises the output-normalised errors.
-3. **Structure selection** (``order=None`` and/or ``integrator=None``) by **blocked
+4. **Structure selection** (``order=None`` and/or ``integrator=None``) by **blocked
    cross-validation on the training data only**.  Every experiment is cut into ``folds``
    blocks (4); each block in turn is held out, the candidate is identified on the rest (the
    pieces before and after it as separate experiments) and simulated on the held-out block
@@ -36,7 +40,7 @@ Algorithm:
    whole record.  The candidates' table is stored in the provenance
    (``details["candidates"]``) and drawn by
    :func:`tendonkit.figures.plot_structure_selection` (``compare --plot``).
-4. **Uncertainty.**  The Gauss–Newton covariance of the parameters at the optimum, mapped
+5. **Uncertainty.**  The Gauss–Newton covariance of the parameters at the optimum, mapped
    to the entries of the stored matrices, is kept in ``details["covariance"]``
    (:mod:`tendonkit.uncertainty` turns it into a confidence band on simulated outputs).
 
@@ -54,6 +58,7 @@ application to system identification", Automatica 40(9), 2004.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -61,18 +66,22 @@ import numpy as np
 from numpy.typing import NDArray
 
 from tendonkit.dataset import Dataset, Experiment
-from tendonkit.errors import OptionError, TendonkitError
+from tendonkit.errors import DataError, OptionError, TendonkitError
 from tendonkit.hookspecs import hookimpl
 from tendonkit.identification import (
     build_model,
     one_blas_thread,
+    options_dict,
     require_samples,
+    training_fit,
     without_training_fit,
 )
 from tendonkit.plugins import _modal
+from tendonkit.plugins._arx_structure import estimate_delays
+from tendonkit.plugins.arx import ARX as ArxOptions
 from tendonkit.plugins.n4sid import N4SID
-from tendonkit.schema import StateSpace
-from tendonkit.simulate import estimate_x0, state_space_response
+from tendonkit.schema import Block, StateSpace
+from tendonkit.simulate import apply_block, estimate_x0, state_space_response
 
 FloatArray = NDArray[np.float64]
 
@@ -106,8 +115,14 @@ class PEM:
     offset : bool
         Estimate the operating point: ``y0`` (and ``u0`` with integrators, which would
         otherwise drift), stored in the model and undone in simulation.
-    feedthrough : bool
-        Estimate ``D``; otherwise ``D = 0``.
+    feedthrough : bool or None
+        Estimate ``D``; ``False``: ``D = 0``; ``None`` (default): estimate it when some input
+        acts without delay, as MATLAB's ``delayest`` finds it (ARX(2, 2) models with delays
+        0 … 10 of every input; :func:`tendonkit.plugins._arx_structure.estimate_delays`).
+    delay : bool or None
+        ``None`` (default) or ``True``: every input's delay is estimated (``delayest``, as
+        for ``feedthrough``) and a delay beyond one sample becomes an input ``delay`` block
+        of the model — a dead time costs no states and no parameters; ``False``: none.
     folds : int
         Blocks every experiment is cut into for the structure selection's cross-validation.
     init_window : int
@@ -136,7 +151,8 @@ class PEM:
     max_order: int = 8
     integrator: bool | None = None
     offset: bool = True
-    feedthrough: bool = False
+    feedthrough: bool | None = None
+    delay: bool | None = None
     folds: int = 4
     init_window: int = 10
     max_iterations: int = 100
@@ -151,9 +167,14 @@ class PEM:
             p.append(
                 f"integrator must be true, false or None (automatic), found {self.integrator!r}."
             )
-        for key in ("offset", "feedthrough"):
-            if not isinstance(getattr(self, key), bool | np.bool_):
-                p.append(f"{key} must be true or false, found {getattr(self, key)!r}.")
+        if self.delay is not None and not isinstance(self.delay, bool | np.bool_):
+            p.append(f"delay must be true, false or None (automatic), found {self.delay!r}.")
+        if not isinstance(self.offset, bool | np.bool_):
+            p.append(f"offset must be true or false, found {self.offset!r}.")
+        if self.feedthrough is not None and not isinstance(self.feedthrough, bool | np.bool_):
+            p.append(
+                f"feedthrough must be true, false or None (automatic), found {self.feedthrough!r}."
+            )
         if not _is_int(self.folds) or self.folds < 2:
             p.append(f"folds must be an integer >= 2, found {self.folds!r}.")
         if not _is_int(self.init_window) or self.init_window < 1:
@@ -167,7 +188,39 @@ class PEM:
     def identify(self, dataset: Dataset) -> Any:
         """Identify a state-space model from ``dataset`` (all experiments)."""
         with one_blas_thread():
-            return self._identify(dataset)
+            if self.feedthrough is not None and self.delay is False:
+                return self._identify(dataset)
+            # the delay of every input, as MATLAB's delayest finds it
+            delays, record = estimate_delays(ArxOptions(), dataset)
+            feedthrough = (0 in delays) if self.feedthrough is None else self.feedthrough
+            # a delay beyond the one sample a strictly proper model has becomes a delay block
+            extra = [max(d - 1, 0) if self.delay is not False else 0 for d in delays]
+            blocks = tuple(
+                Block("delay", name, {"samples": float(d)})
+                for name, d in zip(dataset.inputs, extra, strict=True)
+                if d > 0
+            )
+            shifted = _delayed(dataset, blocks)
+            model = dataclasses.replace(self, feedthrough=feedthrough)._identify(shifted)
+            if blocks:
+                model = model.replace(input_blocks=blocks)
+            prov = model.provenance
+            note = (
+                f"input delays {list(delays)} (delayest): feedthrough "
+                f"{'estimated' if feedthrough else 'none'}"
+                + (f", delay blocks {[b.params['samples'] for b in blocks]}" if blocks else "")
+            )
+            fit = training_fit(model, dataset) if prov.training_fit else prov.training_fit
+            return model.replace(
+                provenance=dataclasses.replace(
+                    prov,
+                    options=options_dict(self),
+                    dataset_hash=dataset.hash(),
+                    training_fit=fit,
+                    notes="; ".join(x for x in (prov.notes, note) if x),
+                    details={**prov.details, "delays": record},
+                )
+            )
 
     def _candidates(self, ny: int) -> list[tuple[int, bool]]:
         orders = [self.order] if self.order is not None else range(1, self.max_order + 1)
@@ -192,7 +245,14 @@ class PEM:
         else:
             n, integ, start = self._select(dataset, candidates, sy, table)
         if start is None:
-            start = self._start(dataset, n, integ)
+            try:
+                start = self._start(dataset, n, integ)
+            except np.linalg.LinAlgError as exc:
+                raise DataError(
+                    f"pem: no start for order {n}{' with integrators' if integ else ''}: the "
+                    f"subspace model is singular ({exc}); try another order, or integrator="
+                    f"{not integ}."
+                ) from None
         layout, theta = start
         layout, theta = _with_experiments(layout, theta, len(exps))
         theta, cost0, cost, nfev = _refine(layout, theta, exps, sy, self.max_iterations)
@@ -348,6 +408,20 @@ class PEM:
         for row in table:
             row["selected"] = row.get("order") == n and row.get("integrator") == integ
         return n, integ, None
+
+
+def _delayed(data: Dataset, blocks: tuple[Block, ...]) -> Dataset:
+    """``data`` with its inputs passed through delay ``blocks`` (what the model will see)."""
+    if not blocks:
+        return data
+    exps = []
+    for e in data.experiments:
+        u = e.u.copy()
+        for b in blocks:
+            j = data.inputs.index(b.signal)
+            u[:, j] = apply_block(b, u[:, j])
+        exps.append(dataclasses.replace(e, u=u))
+    return data.with_experiments(exps)
 
 
 def _integrator_screen(

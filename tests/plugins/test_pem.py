@@ -12,7 +12,7 @@ from tendonkit.errors import OptionError
 from tendonkit.plugins import _modal
 from tendonkit.plugins.pem import PEM
 from tendonkit.realize import fold_offsets
-from tendonkit.schema import Model, Signal, StateSpace
+from tendonkit.schema import Block, Model, Signal, StateSpace
 from tendonkit.simulate import simulate
 from tendonkit.stepper import Stepper
 from tendonkit.testsystems import random_state_space, simulate_truth
@@ -189,3 +189,36 @@ def test_integrators_are_tried_only_where_a_mode_outlasts_the_record() -> None:
     assert (chosen["order"], chosen["integrator"]) == (2, True)
     best_stable = min(r["held_out_rms"] for r in table if not r["integrator"])
     assert best_stable > 1000 * chosen["held_out_rms"]  # a stable model drifts off
+
+
+def test_feedthrough_is_estimated_where_an_input_acts_without_delay() -> None:
+    """feedthrough=None: delayest finds delay 0 for a direct term and D is estimated; a
+    strictly proper system keeps D = 0.  Both say so in the provenance."""
+    rng = np.random.default_rng(5)
+    u = rng.normal(size=(1500, 1))
+    direct = (0.5 * u + 0.3 * np.roll(u, 1, axis=0))[1:]
+    model = tk.identify(_data(u[1:], direct), "pem", order=1, integrator=False)
+    assert model.provenance.options["feedthrough"] is None
+    assert abs(float(model.representation.D[0, 0]) - 0.5) < 1e-6
+    assert "input delays [0] (delayest): feedthrough estimated" in model.provenance.notes
+    data, _ = simulate_truth(random_state_space(2, 1, 1, seed=11), 1500, noise=0.001, seed=2)
+    strict = tk.identify(data, "pem", order=2, integrator=False)
+    assert np.all(strict.representation.D == 0)
+    assert "input delays [1] (delayest): feedthrough none" in strict.provenance.notes
+
+
+def test_a_dead_time_becomes_a_delay_block() -> None:
+    """An input acting 6 samples late: delayest finds it; 5 samples go into a delay block (the
+    sixth is the state update's own), the model keeps its order and simulates exactly."""
+    rng = np.random.default_rng(6)
+    truth = random_state_space(2, 1, 1, seed=11)
+    u = rng.normal(size=(3000, 1))
+    late = truth.replace(input_blocks=(Block("delay", "u1", {"samples": 5.0}),))
+    y = simulate(late, u, initial="zero")  # 5 samples of dead time + the state update's one
+    model = tk.identify(_data(u, y), "pem", order=2, integrator=False)
+    assert [(b.kind, b.params["samples"]) for b in model.input_blocks] == [("delay", 5.0)]
+    assert model.representation.n_states == 2
+    assert model.provenance.training_fit["y1"] > 99.99
+    assert "delay blocks [5.0]" in model.provenance.notes
+    plain = tk.identify(_data(u, y), "pem", order=2, integrator=False, delay=False)
+    assert plain.provenance.training_fit["y1"] < 90.0

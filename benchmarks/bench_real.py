@@ -105,12 +105,6 @@ def cases() -> list[tuple[str, Dataset, list[tuple[str, Dataset, int | str]]]]:
         for k, (u, z) in {"low": ("u11", "z11"), "high": ("u12", "z12")}.items()
     }
 
-    def _part(d: Dataset, start: int, stop: int, name: str) -> Experiment:
-        e = d.experiments[0]
-        return Experiment(
-            t=e.t[start:stop] - e.t[start], u=e.u[start:stop], y=e.y[start:stop], name=name
-        )
-
     train = Dataset(
         inputs=("u",), outputs=("z",), dt=ced["low"].dt,
         experiments=(_part(ced["low"], 0, 400, "low"), _part(ced["high"], 0, 400, "high")),
@@ -125,21 +119,14 @@ def cases() -> list[tuple[str, Dataset, list[tuple[str, Dataset, int | str]]]]:
     ]
     out.append(("Coupled electric drives", train, tests))
     bw = REAL / "bouc_wen"
+    bw_test = Dataset.from_csv(bw / "boucwen_test_multisine.csv", ["u"], ["y"])
     out.append(
         (
             "Bouc-Wen",
             Dataset.from_csv(bw / "boucwen_train_multisine_generated.csv", ["u"], ["y"]),
             [
-                (
-                    "Bouc-Wen multisine",
-                    Dataset.from_csv(bw / "boucwen_test_multisine.csv", ["u"], ["y"]),
-                    "periodic",
-                ),
-                (
-                    "Bouc-Wen multisine, zero start",
-                    Dataset.from_csv(bw / "boucwen_test_multisine.csv", ["u"], ["y"]),
-                    "zero",
-                ),
+                ("Bouc-Wen multisine", bw_test, "periodic"),
+                ("Bouc-Wen multisine, zero start", bw_test, "zero"),
             ],
         )
     )

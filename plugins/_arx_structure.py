@@ -42,9 +42,9 @@ def select(
         nk, losses = estimate_delays(options, data)
         record["delays"] = losses
     else:
-        nk = _tuple(options.nk, nu)
+        nk = as_tuple(options.nk, nu)
     na_fixed = None if options.na == "auto" else int(options.na)
-    nb_fixed = None if options.nb == "auto" else _tuple(options.nb, nu)
+    nb_fixed = None if options.nb == "auto" else as_tuple(options.nb, nu)
     if na_fixed is not None and nb_fixed is not None:
         return na_fixed, nb_fixed, nk, record
     nas = range(0, options.max_order + 1) if na_fixed is None else [na_fixed]
@@ -81,7 +81,8 @@ def select(
     return int(best["na"]), tuple(best["nb"]), nk, record
 
 
-def _tuple(v: Any, n: int) -> tuple[int, ...]:
+def as_tuple(v: Any, n: int) -> tuple[int, ...]:
+    """One value for each of ``n`` inputs (a tuple or list as given)."""
     return tuple(v) if isinstance(v, tuple | list) else (int(v),) * n
 
 

@@ -25,6 +25,7 @@ of redundancy of its full parameterisation with data-driven local coordinates.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -33,6 +34,9 @@ from scipy.signal import lfilter
 
 FloatArray = NDArray[np.float64]
 ComplexArray = NDArray[np.complex128]
+
+#: Largest pole modulus of a stable mode (as n4sid's stabilisation).
+STABLE_RADIUS = 1.0 - 1e-6
 
 
 @dataclass(frozen=True)
@@ -54,9 +58,9 @@ class Layout:
     def _width(self, kind: str) -> int:
         return 2 if kind == "complex" else 1
 
-    @property
+    @functools.cached_property
     def slices(self) -> dict[str, list[slice]]:
-        """Per group a list of slices into θ (per mode for poles, b, c, s0)."""
+        """Per group a list of slices into θ (per mode for poles, b, c, s0); computed once."""
         pos = 0
         out: dict[str, list[slice]] = {"pole": [], "b": [], "c": [], "s0": []}
 
@@ -336,3 +340,70 @@ def bounds(layout: Layout, radius: float) -> tuple[FloatArray, FloatArray]:
             lo[s.start], hi[s.start] = 0.0, radius
             lo[s.start + 1], hi[s.start + 1] = 0.0, np.pi
     return lo, hi
+
+
+# -- refinement -------------------------------------------------------------------------------
+
+
+def residuals(
+    layout: Layout,
+    theta: FloatArray,
+    exps: list[tuple[FloatArray, FloatArray]],
+    sy: FloatArray,
+) -> FloatArray:
+    parts = [((y - simulate(layout, theta, u, k)) / sy).ravel() for k, (u, y) in enumerate(exps)]
+    return np.concatenate(parts)
+
+
+def residual_jacobian(
+    layout: Layout,
+    theta: FloatArray,
+    exps: list[tuple[FloatArray, FloatArray]],
+    sy: FloatArray,
+) -> FloatArray:
+    parts = [
+        (-jacobian(layout, theta, u, k) / sy[None, :, None]).reshape(-1, layout.size)
+        for k, (u, _) in enumerate(exps)
+    ]
+    return np.vstack(parts)
+
+
+def refine(
+    layout: Layout,
+    theta: FloatArray,
+    exps: list[tuple[FloatArray, FloatArray]],
+    sy: FloatArray,
+    max_nfev: int,
+    tol: float = 1e-10,
+    radius: float = STABLE_RADIUS,
+) -> tuple[FloatArray, float, float, int]:
+    """Trust-region least squares on the output-normalised simulation errors of ``exps``.
+
+    Returns ``(theta, rms before, rms after, evaluations)``; ``theta`` is the start when the
+    refinement does not lower the error.  Poles stay within ``radius``.
+    """
+    # lazy: heavy (scipy.optimize)
+    from scipy.optimize import least_squares
+
+    lo, hi = bounds(layout, radius)
+    theta = np.clip(theta, lo, hi)
+    r0 = residuals(layout, theta, exps, sy)
+    n_res = r0.size
+    with np.errstate(all="ignore"):
+        sol = least_squares(
+            lambda th: residuals(layout, th, exps, sy),
+            theta,
+            jac=lambda th: residual_jacobian(layout, th, exps, sy),
+            bounds=(lo, hi),
+            method="trf",
+            x_scale="jac",
+            max_nfev=max_nfev,
+            ftol=tol,
+            xtol=tol,
+            gtol=tol,
+        )
+    before = float(np.sqrt(r0 @ r0 / n_res))
+    after = float(np.sqrt(sol.fun @ sol.fun / n_res))
+    if not np.isfinite(after) or after > before:
+        return theta, before, before, int(sol.nfev)
+    return np.asarray(sol.x), before, after, int(sol.nfev)

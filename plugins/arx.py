@@ -38,6 +38,7 @@ from tendonkit.errors import DataError, OptionError
 from tendonkit.hookspecs import hookimpl
 from tendonkit.identification import (
     build_model,
+    is_int,
     one_blas_thread,
     options_dict,
     require_samples,
@@ -45,6 +46,7 @@ from tendonkit.identification import (
     without_training_fit,
 )
 from tendonkit.plugins import _arx_structure
+from tendonkit.plugins._arx_structure import as_tuple
 from tendonkit.plugins._output_error import refine_output_error
 from tendonkit.regression import scaled_lstsq, term_columns
 from tendonkit.schema import ARX as ARXRep
@@ -113,20 +115,20 @@ class ARX:
 
     def __post_init__(self) -> None:
         p = []
-        if self.na != "auto" and (not _is_int(self.na) or self.na < 0):
+        if self.na != "auto" and (not is_int(self.na) or self.na < 0):
             p.append(f"na must be an integer >= 0 or 'auto', found {self.na!r}.")
         for key in ("nb", "nk"):
             val = getattr(self, key)
             if val == "auto":
                 continue
             vals = val if isinstance(val, tuple) else (val,)
-            if not vals or not all(_is_int(v) and v >= 0 for v in vals):
+            if not vals or not all(is_int(v) and v >= 0 for v in vals):
                 p.append(
                     f"{key} must be an integer >= 0, a tuple of them or 'auto', found {val!r}."
                 )
         for key in ("max_order", "max_delay"):
             val = getattr(self, key)
-            if not _is_int(val) or val < (1 if key == "max_order" else 0):
+            if not is_int(val) or val < (1 if key == "max_order" else 0):
                 p.append(f"{key} must be an integer >= {int(key == 'max_order')}, found {val!r}.")
         if not isinstance(self.ridge, int | float) or not np.isfinite(self.ridge) or self.ridge < 0:
             p.append(f"ridge must be a number >= 0, found {self.ridge!r}.")
@@ -136,7 +138,7 @@ class ARX:
             p.append(f"criterion must be 'equation' or 'simulation', found {self.criterion!r}.")
         if not p and self.bilinear and self.na == 0:  # ("auto" is never 0)
             p.append("bilinear needs na >= 1: the products read y[k-1].")
-        if not p and self.na == 0 and self.nb != "auto" and max(_tup(self.nb, 1)) == 0:
+        if not p and self.na == 0 and self.nb != "auto" and max(as_tuple(self.nb, 1)) == 0:
             p.append("na and nb are both zero: the model would have no parameters.")
         if p:
             raise OptionError("Invalid options for arx:", p)
@@ -155,7 +157,7 @@ class ARX:
     def orders(self, nu: int) -> tuple[list[int], list[int]]:
         """Per-input ``nb`` and ``nk`` lists for ``nu`` inputs (given, not ``"auto"``)."""
         assert self.nb != "auto" and self.nk != "auto", "resolve 'auto' first"
-        nb, nk = _tup(self.nb, nu), _tup(self.nk, nu)
+        nb, nk = as_tuple(self.nb, nu), as_tuple(self.nk, nu)
         if len(nb) != nu or len(nk) != nu:
             raise OptionError(
                 f"arx: nb and nk must give one value or one per input ({nu}); found nb={self.nb!r}, "
@@ -299,14 +301,6 @@ def bilinear_terms(dataset: Dataset, nk: list[int]) -> tuple[Term, ...]:
         for u, k in zip(dataset.inputs, nk)
         for y in dataset.outputs
     )
-
-
-def _is_int(v: object) -> bool:
-    return isinstance(v, int | np.integer) and not isinstance(v, bool)
-
-
-def _tup(v: int | tuple[int, ...], n: int) -> tuple[int, ...]:
-    return v if isinstance(v, tuple) else (v,) * n
 
 
 def _regressors(

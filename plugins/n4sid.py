@@ -55,15 +55,15 @@ from numpy.typing import NDArray
 from tendonkit.dataset import Dataset
 from tendonkit.errors import DataError, OptionError
 from tendonkit.hookspecs import hookimpl
-from tendonkit.identification import build_model, one_blas_thread, require_samples
+from tendonkit.identification import build_model, is_int, one_blas_thread, require_samples
+from tendonkit.plugins import _modal
 from tendonkit.plugins import _subspace as sub
 from tendonkit.schema import Model, StateSpace
-from tendonkit.simulate import state_space_response
 
 FloatArray = NDArray[np.float64]
 
 #: Largest eigenvalue modulus after stabilisation.
-STABLE_RADIUS = 1.0 - 1e-6
+STABLE_RADIUS = _modal.STABLE_RADIUS
 #: Smallest default horizon (block rows); 10 gives fits within 0.01 points of the truth on the
 #: 4-input 2-output order-8 test system at 1 % noise (5 loses 2 points, 20 gains nothing).
 MIN_HORIZON = 10
@@ -95,9 +95,10 @@ class N4SID:
         Refine ``A``, ``B``, ``C`` (``D`` with ``feedthrough``) and every experiment's initial
         state by their free-run simulation error (output-error / prediction-error refinement,
         MATLAB's ``pem`` on an ``n4sid`` start): Levenberg–Marquardt-type trust-region least
-        squares on the output-normalised errors, in a state basis scaled to unit state
-        variance, keeping ``A`` stable; the subspace model is kept if the refinement does not
-        lower the error.  The Kalman gain stays the subspace one.
+        squares on the output-normalised errors, keeping ``A`` stable; the subspace model is kept if the refinement does not
+        lower the error.  The Kalman gain stays the subspace one (in the refined coordinates).
+        The refinement is ``pem``'s (:func:`tendonkit.plugins._modal.refine`): the refined
+        model is in real modal form.
     offset : bool
         Identify the dynamics of the deviations from the mean input and output and store
         that operating point in the model (``u0``, ``y0``: undone in simulation); otherwise
@@ -130,13 +131,13 @@ class N4SID:
 
     def __post_init__(self) -> None:
         p: list[str] = []
-        if self.order is not None and (not _is_int(self.order) or self.order < 1):
+        if self.order is not None and (not is_int(self.order) or self.order < 1):
             p.append(f"order must be an integer >= 1 or None (automatic), found {self.order!r}.")
-        if self.horizon is not None and (not _is_int(self.horizon) or self.horizon < 2):
+        if self.horizon is not None and (not is_int(self.horizon) or self.horizon < 2):
             p.append(
                 f"horizon must be an integer >= 2 or None (automatic), found {self.horizon!r}."
             )
-        if not _is_int(self.max_order) or self.max_order < 1:
+        if not is_int(self.max_order) or self.max_order < 1:
             p.append(f"max_order must be an integer >= 1, found {self.max_order!r}.")
         for key in ("stable", "feedthrough", "estimate_x0", "refine", "offset"):
             if not isinstance(getattr(self, key), bool | np.bool_):
@@ -200,12 +201,13 @@ class N4SID:
             notes.append(f"unstable A (spectral radius {sub.spectral_radius(A):.6g}) stabilised")
             A = sub.stabilize(A, STABLE_RADIUS)
         C = space.C * sy[:, None]
+        A_sub, T = A, np.eye(n)  # the subspace A (for the Kalman gain), and the refinement's basis
         if sub.spectral_radius(A) < 1.0:
             B, D, x0s = sub.fit_input_matrices(
                 A, C, exps, feedthrough=self.feedthrough, estimate_x0=self.estimate_x0
             )
             if self.refine:
-                A, B, C, D, x0s, note = _refine(A, B, C, D, x0s, exps, sy, self.feedthrough)
+                A, B, C, D, x0s, T, note = _refine(A, B, C, D, x0s, exps, sy, self.feedthrough)
                 notes.append(note)
             x0 = x0s[0] if self.estimate_x0 else None
         else:
@@ -214,8 +216,8 @@ class N4SID:
             D = (sy[:, None] * Ds / su[None, :]) if self.feedthrough else np.zeros((ny, nu))
             x0 = None
             notes.append("A is unstable: B and D from the subspace step, no x0")
-        Ks = sub.kalman_gain(space, A)
-        K = None if Ks is None else Ks / sy[None, :]
+        Ks = sub.kalman_gain(space, A_sub)
+        K = None if Ks is None else T @ Ks / sy[None, :]
         if K is None:
             notes.append("no Kalman gain (singular noise covariance)")
         notes.append("singular values " + " ".join(f"{v:.4g}" for v in sv[: min(len(sv), n + 4)]))
@@ -233,67 +235,39 @@ def _refine(
     exps: list[tuple[FloatArray, FloatArray]],
     sy: FloatArray,
     feedthrough: bool,
-) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, list[FloatArray], str]:
-    """Simulation-error refinement of a stable state-space model (see ``N4SID.refine``)."""
-    # lazy: heavy (scipy.optimize)
-    from scipy.optimize import least_squares
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, list[FloatArray], FloatArray, str]:
+    """Simulation-error refinement of a stable state-space model (see ``N4SID.refine``).
 
-    n, nu, ny = A.shape[0], B.shape[1], C.shape[0]
+    The same refinement as ``pem``'s (:func:`tendonkit.plugins._modal.refine`, modal
+    coordinates, exact Jacobian, poles bounded by ``STABLE_RADIUS``).  Also returns the state
+    transformation ``T`` into the refined model's coordinates (``x_new = T x``), so that the
+    subspace Kalman gain can follow (``K_new = T K``); the identity when the subspace model
+    is kept.
+    """
+    n = A.shape[0]
     x0s = [np.zeros(n) if x is None else np.asarray(x, dtype=float) for x in x0s]
     while len(x0s) < len(exps):
         x0s.append(np.zeros(n))
-    # a state basis of unit state variance: every parameter on a comparable scale
-    states = [
-        state_space_response(A, B, np.eye(n), np.zeros((n, nu)), u, x)
-        for (u, _), x in zip(exps, x0s)
-    ]
-    scale = np.std(np.vstack(states), axis=0)
-    scale = np.where(scale > 1e-12 * max(float(scale.max()), 1e-300), scale, 1.0)
-    T, Ti = np.diag(1.0 / scale), np.diag(scale)
-    A0, B0, C0 = T @ A @ Ti, T @ B, C @ Ti
-    z0 = [T @ x for x in x0s]
-    sizes = [n * n, n * nu, ny * n, ny * nu if feedthrough else 0] + [n] * len(exps)
-
-    def unpack(
-        theta: FloatArray,
-    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, list[FloatArray]]:
-        parts = np.split(theta, np.cumsum(sizes)[:-1])
-        Dm = parts[3].reshape(ny, nu) if feedthrough else D
-        return (
-            parts[0].reshape(n, n),
-            parts[1].reshape(n, nu),
-            parts[2].reshape(ny, n),
-            Dm,
-            parts[4:],
-        )
-
-    theta0 = np.concatenate(
-        [A0.ravel(), B0.ravel(), C0.ravel(), D.ravel() if feedthrough else np.zeros(0), *z0]
-    )
-    n_res = sum(y.size for _, y in exps)
-
-    def residuals(theta: FloatArray) -> FloatArray:
-        Am, Bm, Cm, Dm, zs = unpack(theta)
-        if sub.spectral_radius(Am) >= STABLE_RADIUS:
-            return np.full(n_res, 1e3)  # outside the stable set: far worse than any fit
-        res = [
-            ((y - state_space_response(Am, Bm, Cm, Dm, u, z)) / sy).ravel()
-            for (u, y), z in zip(exps, zs)
-        ]
-        out = np.concatenate(res)
-        return out if np.all(np.isfinite(out)) else np.full(n_res, 1e3)
-
-    r0 = residuals(theta0)
-    sol = least_squares(residuals, theta0, method="trf", x_scale="jac", max_nfev=60)
-    before, after = float(r0 @ r0), float(sol.fun @ sol.fun)
-    Am, Bm, Cm, Dm, zs = unpack(sol.x)
-    if not after < before or sub.spectral_radius(Am) >= STABLE_RADIUS:
-        return A, B, C, D, x0s, "refinement kept the subspace model (no lower simulation error)"
+    kw = {
+        "integrators": 0, "feedthrough": feedthrough, "output_offset": False,
+        "input_offset": False, "y0": np.zeros(C.shape[0]), "u0": np.zeros(B.shape[1]),
+        "radius": STABLE_RADIUS,
+    }  # fmt: skip
+    layout, theta = _modal.from_state_space(A, B, C, D, x0s, **kw)
+    theta, before, after, nfev = _modal.refine(layout, theta, exps, sy, 60, 1e-8)
+    if not after < before:
+        msg = "refinement kept the subspace model (no lower simulation error)"
+        return A, B, C, D, x0s, np.eye(n), msg
+    Am, Bm, Cm, Dm, zs, _, _ = _modal.to_state_space(layout, theta)
+    # the modal coordinates of the unit initial states are the columns of T
+    unit = [np.eye(n)[:, k] for k in range(n)]
+    basis, theta_basis = _modal.from_state_space(A, B, C, D, unit, **kw)
+    T = np.column_stack(_modal.to_state_space(basis, theta_basis)[4])
     note = (
-        f"refined by simulation error: normalised RMS {np.sqrt(before / n_res):.4g} -> "
-        f"{np.sqrt(after / n_res):.4g} ({sol.nfev} evaluations)"
+        f"refined by simulation error: normalised RMS {before:.4g} -> {after:.4g} "
+        f"({nfev} evaluations)"
     )
-    return Am, Bm, Cm, Dm, [np.asarray(z) for z in zs], note
+    return Am, Bm, Cm, Dm if feedthrough else D, zs, T, note
 
 
 def _gram(
@@ -326,10 +300,6 @@ def _rms(parts: list[FloatArray], k: int) -> FloatArray:
 
 def _ceil_div(a: int, b: int) -> int:
     return -(-a // b)
-
-
-def _is_int(v: object) -> bool:
-    return isinstance(v, int | np.integer) and not isinstance(v, bool | np.bool_)
 
 
 @hookimpl

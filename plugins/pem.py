@@ -70,6 +70,7 @@ from tendonkit.errors import DataError, OptionError, TendonkitError
 from tendonkit.hookspecs import hookimpl
 from tendonkit.identification import (
     build_model,
+    is_int,
     one_blas_thread,
     options_dict,
     require_samples,
@@ -81,12 +82,12 @@ from tendonkit.plugins._arx_structure import estimate_delays
 from tendonkit.plugins.arx import ARX as ArxOptions
 from tendonkit.plugins.n4sid import N4SID
 from tendonkit.schema import Block, StateSpace
-from tendonkit.simulate import apply_block, estimate_x0, state_space_response
+from tendonkit.simulate import estimate_x0, ss_response, transform_inputs
 
 FloatArray = NDArray[np.float64]
 
 #: Largest pole modulus of a stable mode.
-STABLE_RADIUS = 1.0 - 1e-6
+STABLE_RADIUS = _modal.STABLE_RADIUS
 #: A smaller candidate within this relative margin of the best held-out error is preferred
 #: (a tie: the candidates are refined to SELECTION_TOL only).
 PARSIMONY = 0.001
@@ -159,9 +160,9 @@ class PEM:
 
     def __post_init__(self) -> None:
         p: list[str] = []
-        if self.order is not None and (not _is_int(self.order) or self.order < 1):
+        if self.order is not None and (not is_int(self.order) or self.order < 1):
             p.append(f"order must be an integer >= 1 or None (automatic), found {self.order!r}.")
-        if not _is_int(self.max_order) or self.max_order < 1:
+        if not is_int(self.max_order) or self.max_order < 1:
             p.append(f"max_order must be an integer >= 1, found {self.max_order!r}.")
         if self.integrator is not None and not isinstance(self.integrator, bool | np.bool_):
             p.append(
@@ -175,11 +176,11 @@ class PEM:
             p.append(
                 f"feedthrough must be true, false or None (automatic), found {self.feedthrough!r}."
             )
-        if not _is_int(self.folds) or self.folds < 2:
+        if not is_int(self.folds) or self.folds < 2:
             p.append(f"folds must be an integer >= 2, found {self.folds!r}.")
-        if not _is_int(self.init_window) or self.init_window < 1:
+        if not is_int(self.init_window) or self.init_window < 1:
             p.append(f"init_window must be an integer >= 1, found {self.init_window!r}.")
-        if not _is_int(self.max_iterations) or self.max_iterations < 1:
+        if not is_int(self.max_iterations) or self.max_iterations < 1:
             p.append(f"max_iterations must be an integer >= 1, found {self.max_iterations!r}.")
         if p:
             raise OptionError("Invalid options for pem:", p)
@@ -200,7 +201,7 @@ class PEM:
                 for name, d in zip(dataset.inputs, extra, strict=True)
                 if d > 0
             )
-            shifted = _delayed(dataset, blocks)
+            shifted = transform_inputs(dataset, blocks) if blocks else dataset
             model = dataclasses.replace(self, feedthrough=feedthrough)._identify(shifted)
             if blocks:
                 model = model.replace(input_blocks=blocks)
@@ -254,8 +255,7 @@ class PEM:
                     f"{not integ}."
                 ) from None
         layout, theta = start
-        layout, theta = _with_experiments(layout, theta, len(exps))
-        theta, cost0, cost, nfev = _refine(layout, theta, exps, sy, self.max_iterations)
+        theta, cost0, cost, nfev = _modal.refine(layout, theta, exps, sy, self.max_iterations)
         A, B, C, D, x0s, u0, y0 = _modal.to_state_space(layout, theta)
         how = "given" if len(candidates) == 1 else "selected on held-out data"
         notes = [
@@ -368,7 +368,7 @@ class PEM:
                 for fit_data, held in folds:
                     layout, theta = self._start(fit_data, n, integ)
                     exps = [(e.u, e.y) for e in fit_data.experiments]
-                    theta, _, cost, _ = _refine(
+                    theta, _, cost, _ = _modal.refine(
                         layout, theta, exps, sy, min(self.max_iterations, 50), SELECTION_TOL
                     )
                     est.append(cost)
@@ -408,20 +408,6 @@ class PEM:
         for row in table:
             row["selected"] = row.get("order") == n and row.get("integrator") == integ
         return n, integ, None
-
-
-def _delayed(data: Dataset, blocks: tuple[Block, ...]) -> Dataset:
-    """``data`` with its inputs passed through delay ``blocks`` (what the model will see)."""
-    if not blocks:
-        return data
-    exps = []
-    for e in data.experiments:
-        u = e.u.copy()
-        for b in blocks:
-            j = data.inputs.index(b.signal)
-            u[:, j] = apply_block(b, u[:, j])
-        exps.append(dataclasses.replace(e, u=u))
-    return data.with_experiments(exps)
 
 
 def _integrator_screen(
@@ -472,7 +458,7 @@ def _held_out(
     with np.errstate(all="ignore"):
         for e in held:
             x0 = estimate_x0(rep, e.u, e.y, window=window)
-            sim = state_space_response(A, B, C, D, e.u - u0, x0) + y0
+            sim = ss_response(A, B, C, D, e.u - u0, x0) + y0
             err = (e.y[window:] - sim[window:]) / sy
             sq += float(np.sum(err**2))
             count += err.size
@@ -480,75 +466,6 @@ def _held_out(
 
 
 # -- the refinement -------------------------------------------------------------------------------
-
-
-def _with_experiments(
-    layout: _modal.Layout, theta: FloatArray, n_exp: int
-) -> tuple[_modal.Layout, FloatArray]:
-    """The same model with ``n_exp`` experiments (the estimation part had as many)."""
-    assert layout.n_exp == n_exp
-    return layout, theta
-
-
-def _residuals(
-    layout: _modal.Layout,
-    theta: FloatArray,
-    exps: list[tuple[FloatArray, FloatArray]],
-    sy: FloatArray,
-) -> FloatArray:
-    parts = [
-        ((y - _modal.simulate(layout, theta, u, k)) / sy).ravel() for k, (u, y) in enumerate(exps)
-    ]
-    return np.concatenate(parts)
-
-
-def _jac(
-    layout: _modal.Layout,
-    theta: FloatArray,
-    exps: list[tuple[FloatArray, FloatArray]],
-    sy: FloatArray,
-) -> FloatArray:
-    parts = [
-        (-_modal.jacobian(layout, theta, u, k) / sy[None, :, None]).reshape(-1, layout.size)
-        for k, (u, _) in enumerate(exps)
-    ]
-    return np.vstack(parts)
-
-
-def _refine(
-    layout: _modal.Layout,
-    theta: FloatArray,
-    exps: list[tuple[FloatArray, FloatArray]],
-    sy: FloatArray,
-    max_nfev: int,
-    tol: float = 1e-10,
-) -> tuple[FloatArray, float, float, int]:
-    """Trust-region least squares on the normalised simulation errors."""
-    # lazy: heavy (scipy.optimize)
-    from scipy.optimize import least_squares
-
-    lo, hi = _modal.bounds(layout, STABLE_RADIUS)
-    theta = np.clip(theta, lo, hi)
-    r0 = _residuals(layout, theta, exps, sy)
-    n_res = r0.size
-    with np.errstate(all="ignore"):
-        sol = least_squares(
-            lambda th: _residuals(layout, th, exps, sy),
-            theta,
-            jac=lambda th: _jac(layout, th, exps, sy),
-            bounds=(lo, hi),
-            method="trf",
-            x_scale="jac",
-            max_nfev=max_nfev,
-            ftol=tol,
-            xtol=tol,
-            gtol=tol,
-        )
-    before = float(np.sqrt(r0 @ r0 / n_res))
-    after = float(np.sqrt(sol.fun @ sol.fun / n_res))
-    if not np.isfinite(after) or after > before:
-        return theta, before, before, int(sol.nfev)
-    return np.asarray(sol.x), before, after, int(sol.nfev)
 
 
 def _fit_initial_states(
@@ -588,8 +505,8 @@ def _covariance(
     variance; the map from the modal parameters to the stored matrices is differentiated
     numerically (it involves no simulation).  The initial states are left out.
     """
-    J = _jac(layout, theta, exps, sy)
-    r = _residuals(layout, theta, exps, sy)
+    J = _modal.residual_jacobian(layout, theta, exps, sy)
+    r = _modal.residuals(layout, theta, exps, sy)
     s = np.linalg.svd(J, compute_uv=False)
     rank = int(np.sum(s > 1e-10 * s[0])) if s.size and s[0] > 0 else 0
     if rank == 0 or r.size <= rank:
@@ -628,10 +545,6 @@ def _covariance(
         "matrix": cov.tolist(),
         "noise_variance": lam,
     }
-
-
-def _is_int(v: object) -> bool:
-    return isinstance(v, int | np.integer) and not isinstance(v, bool | np.bool_)
 
 
 @hookimpl

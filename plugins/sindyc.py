@@ -61,7 +61,7 @@ from numpy.typing import NDArray
 from tendonkit.dataset import Dataset, Experiment
 from tendonkit.errors import DataError, OptionError, PluginError
 from tendonkit.hookspecs import hookimpl
-from tendonkit.identification import build_model, require_samples, signals
+from tendonkit.identification import build_model, is_int, require_samples, signals
 from tendonkit.metrics import fit
 from tendonkit.regression import r_factor
 from tendonkit.schema import Model, SparseMap
@@ -133,13 +133,13 @@ class SINDYc:
         p = []
         if self.threshold is not None and not (_is_number(self.threshold) and self.threshold >= 0):
             p.append(f"threshold must be a number >= 0 or None (sweep), found {self.threshold!r}.")
-        if not _is_int(self.degree) or not 1 <= self.degree <= MAX_DEGREE:
+        if not is_int(self.degree) or not 1 <= self.degree <= MAX_DEGREE:
             p.append(f"degree must be an integer from 1 to {MAX_DEGREE}, found {self.degree!r}.")
         if not isinstance(self.sin, bool):
             p.append(f"sin must be true or false, found {self.sin!r}.")
         if not (_is_number(self.alpha) and self.alpha >= 0):
             p.append(f"alpha must be a number >= 0, found {self.alpha!r}.")
-        if not _is_int(self.max_iter) or self.max_iter < 1:
+        if not is_int(self.max_iter) or self.max_iter < 1:
             p.append(f"max_iter must be an integer >= 1, found {self.max_iter!r}.")
         frac = self.validation_fraction
         if not (_is_number(frac) and 0.0 < frac < 1.0):
@@ -571,10 +571,6 @@ def _require_rows(dataset: Dataset, n_terms: int) -> None:
             f"Too few samples for sindyc: {rows} transitions for a library of {n_terms} terms; "
             "use more data, a lower degree or sin=false."
         )
-
-
-def _is_int(v: object) -> bool:
-    return isinstance(v, int | np.integer) and not isinstance(v, bool)
 
 
 def _is_number(v: object) -> bool:

@@ -98,6 +98,14 @@ class StateSpace:
         return int(self.A.shape[0])
 
     @property
+    def operating_point(self) -> tuple[FloatArray, FloatArray]:
+        """``(u0, y0)`` as arrays, zeros where unset."""
+        nu, ny = self.B.shape[1], self.C.shape[0]
+        u0 = np.zeros(nu) if self.u0 is None else np.asarray(self.u0, dtype=float)
+        y0 = np.zeros(ny) if self.y0 is None else np.asarray(self.y0, dtype=float)
+        return u0, y0
+
+    @property
     def has_offsets(self) -> bool:
         """Whether a non-zero operating point ``u0`` or ``y0`` is set."""
         return any(v is not None and bool(np.any(np.asarray(v) != 0)) for v in (self.u0, self.y0))

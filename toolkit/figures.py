@@ -54,6 +54,21 @@ def plot_outputs(
     title: str = "Measured and simulated outputs",
 ) -> Path:
     """Measured outputs and one or more model simulations over time, one panel per output."""
+    fig = _output_panels(t, y, y_hat, outputs, units, title)
+    return _save(fig, out_dir / f"outputs_{_slug(name)}.png")
+
+
+def _output_panels(
+    t: FloatArray,
+    y: FloatArray,
+    y_hat: dict[str, FloatArray],
+    outputs: Sequence[str],
+    units: Sequence[str] | None,
+    title: str,
+    band: tuple[FloatArray, str] | None = None,
+) -> Any:
+    """One panel per output: measured, the simulations, and a band (half-width, label)
+    around the first simulation."""
     plt = _plt()
     ny = y.shape[1]
     fig, axes = plt.subplots(ny, 1, figsize=(10, 2.6 * ny), sharex=True, squeeze=False)
@@ -62,13 +77,16 @@ def plot_outputs(
         ax.plot(t, y[:, j], color="black", lw=1.0, label="measured")
         for label, yh in y_hat.items():
             ax.plot(t, yh[:, j], lw=1.0, label=label)
+        if band is not None:
+            centre, (half, label) = next(iter(y_hat.values()))[:, j], band
+            ax.fill_between(t, centre - half[:, j], centre + half[:, j], alpha=0.3, label=label)
         unit = units[j] if units and units[j] else "signal units"
         ax.set_ylabel(f"{outputs[j]} [{unit}]")
         ax.legend(loc="upper right", fontsize=8)
         ax.grid(alpha=0.3)
     axes[-1, 0].set_xlabel("time [s]")
     axes[0, 0].set_title(title)
-    return _save(fig, out_dir / f"outputs_{_slug(name)}.png")
+    return fig
 
 
 def plot_structure_selection(
@@ -150,23 +168,11 @@ def plot_band(
     level: float = 0.99,
 ) -> Path:
     """Measured outputs, the simulation and its confidence band (MATLAB ``showConfidence``)."""
-    plt = _plt()
-    ny = y.shape[1]
-    fig, axes = plt.subplots(ny, 1, figsize=(10, 2.6 * ny), sharex=True, squeeze=False)
-    for j in range(ny):
-        ax = axes[j, 0]
-        ax.plot(t, y[:, j], color="black", lw=1.0, label="measured")
-        ax.plot(t, y_hat[:, j], lw=1.0, label="simulated")
-        ax.fill_between(
-            t, y_hat[:, j] - half_width[:, j], y_hat[:, j] + half_width[:, j], alpha=0.3,
-            label=f"{level:.0%} band (parameter uncertainty)",
-        )  # fmt: skip
-        unit = units[j] if units and units[j] else "signal units"
-        ax.set_ylabel(f"{outputs[j]} [{unit}]")
-        ax.legend(loc="upper right", fontsize=8)
-        ax.grid(alpha=0.3)
-    axes[-1, 0].set_xlabel("time [s]")
-    axes[0, 0].set_title(f"Simulation with its confidence band: {name}")
+    fig = _output_panels(
+        t, y, {"simulated": y_hat}, outputs, units,
+        f"Simulation with its confidence band: {name}",
+        band=(half_width, f"{level:.0%} band (parameter uncertainty)"),
+    )  # fmt: skip
     return _save(fig, out_dir / f"band_{_slug(name)}.png")
 
 

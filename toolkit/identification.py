@@ -137,6 +137,11 @@ def training_fit(model: Model, dataset: Dataset) -> dict[str, float]:
     return {name: float(v) if np.isfinite(v) else -1e300 for name, v in zip(model.output_names, f)}
 
 
+def is_int(v: object) -> bool:
+    """Whether ``v`` is an integer option value (Python or numpy; a bool is not)."""
+    return isinstance(v, int | np.integer) and not isinstance(v, bool | np.bool_)
+
+
 def require_samples(dataset: Dataset, needed: int, why: str) -> None:
     """Raise :class:`DataError` if an experiment is shorter than ``needed`` samples."""
     short = [e for e in dataset.experiments if e.n_samples < needed]

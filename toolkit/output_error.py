@@ -11,7 +11,7 @@ differences through the compiled simulation):
 - ``state_space``: ``A``, ``B``, ``C``, the non-zero ``D``, the term matrix ``E``, ``u0`` and
   ``y0`` where set;
 - ``arx``: every coefficient of ``A``, the non-zero ``B``, the offset and the term
-  coefficients;
+  coefficients (a clipped-state term's follow ``A``: :func:`tied_terms`);
 - ``sparse_map``: the non-zero coefficients (the sparsity pattern stays);
 - blocks: every parameter but a delay's (a fractional delay's samples are continuous, but a
   change of its integer part is a change of structure) — dead-zone thresholds and centres,
@@ -26,7 +26,7 @@ on.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any, Literal
 
 import numpy as np
@@ -50,7 +50,34 @@ BLOCK_BOUNDS = {
 }
 
 
-def _codec(model: Model) -> tuple[FloatArray, Callable[[FloatArray], Model]]:
+def tied_terms(rep: ARX, outputs: Sequence[str]) -> list[tuple[int, int, int, float]]:
+    """Clipped-state terms of an ARX model: ``(term index, lag, output index, sign)``.
+
+    ``relu`` of a past output ``j`` at lag ``i`` whose coefficients are exactly ``±A_i[:, j]``
+    is how a state clipped inside the recursion is written (``Σ A_i clip(y[k-i])``, the
+    ``saturation`` effect); the refinement keeps those coefficients equal to ``A``'s so that
+    the clip stays a clip.
+    """
+    out: list[tuple[int, int, int, float]] = []
+    coef = rep.term_coefficients
+    if coef is None:
+        return out
+    names = list(outputs)
+    for t, term in enumerate(rep.terms):
+        if len(term.factors) != 1:
+            continue
+        f = term.factors[0]
+        if f.fn != "relu" or f.signal not in names or not 1 <= f.lag <= rep.na:
+            continue
+        j = names.index(f.signal)
+        col = rep.A[f.lag - 1][:, j]
+        sign = 1.0 if f.scale > 0 else -1.0
+        if np.any(col) and np.allclose(coef[t], sign * col, rtol=0, atol=1e-12):
+            out.append((t, f.lag, j, sign))
+    return out
+
+
+def _codec(model: Model, blocks: bool = True) -> tuple[FloatArray, Callable[[FloatArray], Model]]:
     """The free parameters of ``model`` as a vector, and the map back to a model."""
     rep = model.representation
     parts: list[tuple[str, Any, NDArray[np.bool_]]] = []  # (name, array, mask of free entries)
@@ -70,18 +97,21 @@ def _codec(model: Model) -> tuple[FloatArray, Callable[[FloatArray], Model]]:
         if rep.offset is not None:
             off = np.asarray(rep.offset, float)
             parts.append(("offset", off, np.ones(off.shape, bool)))
+        tied = tied_terms(rep, model.output_names)
         if rep.term_coefficients is not None:
             tc = np.asarray(rep.term_coefficients, float)
-            parts.append(("terms", tc, np.ones(tc.shape, bool)))
+            free = np.ones(tc.shape, bool)
+            free[[t for t, *_ in tied]] = False
+            parts.append(("terms", tc, free))
     else:
         co = np.asarray(rep.coefficients, float)
         parts.append(("coefficients", co, co != 0))
-    blocks = [
+    free_blocks = [
         (side, i, name)
         for side, chain in (("in", model.input_blocks), ("out", model.output_blocks))
         for i, b in enumerate(chain)
         for name in sorted(b.params)
-        if (b.kind, name) not in FIXED_BLOCK_PARAMS
+        if blocks and (b.kind, name) not in FIXED_BLOCK_PARAMS
     ]
     theta0 = np.concatenate(
         [arr[mask] for _, arr, mask in parts]
@@ -89,7 +119,7 @@ def _codec(model: Model) -> tuple[FloatArray, Callable[[FloatArray], Model]]:
             np.array(
                 [
                     (model.input_blocks if s == "in" else model.output_blocks)[i].params[n]
-                    for s, i, n in blocks
+                    for s, i, n in free_blocks
                 ],
                 dtype=float,
             )
@@ -108,18 +138,23 @@ def _codec(model: Model) -> tuple[FloatArray, Callable[[FloatArray], Model]]:
         if isinstance(rep, StateSpace):
             r: Any = dataclasses.replace(rep, **new)
         elif isinstance(rep, ARX):
+            A = tuple(new[f"A{i}"] for i in range(len(rep.A)))
+            coef: FloatArray | None = new.get("terms")
+            if coef is not None:
+                for t, lag, j, sign in tied:  # a clipped state stays a clip of the state
+                    coef[t] = sign * A[lag - 1][:, j]
             r = dataclasses.replace(
                 rep,
-                A=tuple(new[f"A{i}"] for i in range(len(rep.A))),
+                A=A,
                 B=tuple(new[f"B{j}"] for j in range(len(rep.B))),
                 offset=new.get("offset"),
-                term_coefficients=new.get("terms"),
+                term_coefficients=coef,
             )
         else:
             assert isinstance(rep, SparseMap)
             r = dataclasses.replace(rep, coefficients=new["coefficients"])
         ins, outs = list(model.input_blocks), list(model.output_blocks)
-        for s, i, n in blocks:
+        for s, i, n in free_blocks:
             chain = ins if s == "in" else outs
             b = chain[i]
             lo, hi = BLOCK_BOUNDS.get((b.kind, n), (-np.inf, np.inf))
@@ -143,6 +178,7 @@ def refine(
     max_nfev: int = 100,
     tol: float = 1e-6,
     initial: Literal["estimate", "model", "zero"] = "estimate",
+    blocks: bool = True,
 ) -> Model:
     """Re-estimate every continuous parameter of ``model`` by its free-run simulation error.
 
@@ -159,6 +195,8 @@ def refine(
     initial : str
         How each experiment's initial state is obtained at every evaluation
         (``"estimate"``: from the data, as the benchmarks; ``"model"`` or ``"zero"``).
+    blocks : bool
+        Also refine the blocks' parameters; ``False`` keeps them as the caller chose them.
 
     Returns
     -------
@@ -170,7 +208,7 @@ def refine(
     from scipy.optimize import least_squares
 
     data = aligned(model, data)
-    theta0, decode = _codec(model)
+    theta0, decode = _codec(model, blocks)
     if theta0.size == 0:
         return model
     scale = np.std(data.y, axis=0)
@@ -183,18 +221,17 @@ def refine(
             for e in data.experiments:
                 sim = simulate(m, e.u, y=e.y, initial=initial)
                 errs.append(((e.y - sim) / scale).ravel())
-        out = np.concatenate(errs)
-        # a diverged simulation is far worse than any fit: the optimiser steps back
-        return np.where(np.isfinite(out), out, 1e6)
+        # a diverged simulation is not finite, which makes the optimiser shorten its step
+        return np.concatenate(errs)
 
     r0 = residuals(theta0)
     cost0 = float(r0 @ r0)
     if not np.isfinite(cost0):
         return model
-    with np.errstate(all="ignore"):
+    with np.errstate(all="ignore"):  # trial steps may diverge; the optimiser steps back
         sol = least_squares(residuals, theta0, x_scale="jac", ftol=tol, xtol=tol, max_nfev=max_nfev)
     cost = float(sol.fun @ sol.fun)
-    if not cost < cost0:
+    if not np.isfinite(cost) or not cost < cost0:
         return model
     refined = decode(sol.x)
     n = r0.size

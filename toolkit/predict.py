@@ -54,8 +54,7 @@ def predict(model: Model, u: FloatArray, y: FloatArray, k: int = 1) -> FloatArra
         return _predict_ss_terms(model, rep, ub, y, k)
     if isinstance(rep, StateSpace) and rep.has_offsets:
         # the Kalman predictor runs on the deviations from the operating point
-        u0 = 0.0 if rep.u0 is None else np.asarray(rep.u0, dtype=float)
-        y0 = 0.0 if rep.y0 is None else np.asarray(rep.y0, dtype=float)
+        u0, y0 = rep.operating_point
         lin = dataclasses.replace(rep, u0=None, y0=None)
         return _predict_ss(lin, ub - u0, y - y0, k) + y0
     if isinstance(rep, StateSpace):
@@ -74,8 +73,7 @@ def _predict_ss_terms(
         rep.A, np.hstack([rep.B, rep.E]), rep.C, np.hstack([rep.D, np.zeros((ny, rep.E.shape[1]))])
     )
     # the linear part acts on deviations from the operating point (zero without one)
-    u0 = np.zeros(u.shape[1]) if rep.u0 is None else np.asarray(rep.u0, dtype=float)
-    y0 = np.zeros(ny) if rep.y0 is None else np.asarray(rep.y0, dtype=float)
+    u0, y0 = rep.operating_point
     y_raw, u, y = y, u - u0, y - y0
     ua = np.hstack([u, theta])
     K = rep.K if rep.K is not None else fitted_kalman_gain(lin, ua, y)

@@ -114,8 +114,7 @@ def fold_offsets(ss: StateSpace) -> StateSpace:
         return ss
     n, nu = ss.B.shape
     ny = ss.C.shape[0]
-    u0 = np.zeros(nu) if ss.u0 is None else np.asarray(ss.u0, dtype=float)
-    y0 = np.zeros(ny) if ss.y0 is None else np.asarray(ss.y0, dtype=float)
+    u0, y0 = ss.operating_point
     A = np.block([[ss.A, -(ss.B @ u0)[:, None]], [np.zeros((1, n)), np.ones((1, 1))]])
     B = np.vstack([ss.B, np.zeros((1, nu))])
     C = np.hstack([ss.C, (y0 - ss.D @ u0)[:, None]])

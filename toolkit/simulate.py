@@ -15,6 +15,7 @@ simulated outputs after them.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -98,6 +99,18 @@ def play_operator(s: FloatArray, width: float, start: float | None = None) -> Fl
             v = x - lo
         out[k] = v
     return out
+
+
+def transform_inputs(data: Dataset, blocks: Sequence[Block]) -> Dataset:
+    """Apply input blocks to every experiment's inputs (what a model with them sees)."""
+    exps = []
+    for e in data.experiments:
+        u = e.u.copy()
+        for b in blocks:
+            j = data.inputs.index(b.signal)
+            u[:, j] = apply_block(b, u[:, j])
+        exps.append(dataclasses.replace(e, u=u))
+    return data.with_experiments(exps)
 
 
 def _apply_blocks(
@@ -369,9 +382,8 @@ def _sim_ss(
 
 def _deviations(rep: StateSpace, u: FloatArray) -> tuple[FloatArray, FloatArray]:
     """``u - u0`` and ``y0`` of a state-space model (zeros where the offset is unset)."""
-    du = u if rep.u0 is None else u - np.asarray(rep.u0, dtype=float)
-    y0 = np.zeros(rep.C.shape[0]) if rep.y0 is None else np.asarray(rep.y0, dtype=float)
-    return du, y0
+    u0, y0 = rep.operating_point
+    return u - u0, y0
 
 
 def ss_theta_measured(model: Model, u: FloatArray, y: FloatArray) -> FloatArray:
@@ -446,18 +458,6 @@ def _sim_ss_terms(
             Y[kk + 1 :] = np.nan
             break
     return Y[L:]
-
-
-def state_space_response(
-    A: FloatArray, B: FloatArray, C: FloatArray, D: FloatArray, u: FloatArray, x0: FloatArray
-) -> FloatArray:
-    """Outputs of ``x+ = A x + B u``, ``y = C x + D u`` from ``x0`` (block-recursive, compiled).
-
-    The linear core of :func:`simulate` for callers that iterate on the matrices themselves
-    (an output-error refinement simulates thousands of candidates): no model object, no
-    checks.  ``u`` is ``(n, nu)``; returns ``(n, ny)``.
-    """
-    return ss_response(A, B, C, D, u, x0)
 
 
 def estimate_x0(
@@ -602,5 +602,5 @@ __all__ = [
     "split_delay",
     "ss_response",
     "ss_theta_measured",
-    "state_space_response",
+    "transform_inputs",
 ]

@@ -25,7 +25,7 @@ from ..dataset import Dataset, Experiment
 from ..errors import SchemaError
 from ..regression import scaled_lstsq, term_columns_of
 from ..schema import ARX, Block, Model, SparseMap, StateSpace
-from ..simulate import aligned, apply_block
+from ..simulate import aligned, transform_inputs
 from ..terms import Term
 
 FloatArray = NDArray[np.float64]
@@ -242,8 +242,7 @@ def _extend_ss(model: Model, rep: StateSpace, data: Dataset, terms: tuple[Term, 
     blocks, targets = [], []
     n_exp = len(data.experiments)
     # the linear part acts on deviations from the operating point; Θ reads the raw signals
-    u0 = np.zeros(nu) if rep.u0 is None else np.asarray(rep.u0, dtype=float)
-    y0 = np.zeros(ny) if rep.y0 is None else np.asarray(rep.y0, dtype=float)
+    u0, y0 = rep.operating_point
     for ei, e in enumerate(data.experiments):
         theta = term_columns_of(all_terms, _signals(model, e), e.n_samples)
         du = e.u - u0
@@ -281,18 +280,6 @@ def _extend_ss(model: Model, rep: StateSpace, data: Dataset, terms: tuple[Term, 
 
 
 # -- data transforms for block-based extensions ---------------------------------------------------
-
-
-def transform_inputs(data: Dataset, blocks: Sequence[Block]) -> Dataset:
-    """Apply input blocks to every experiment's inputs (what the extended model sees)."""
-    exps = []
-    for e in data.experiments:
-        u = e.u.copy()
-        for b in blocks:
-            j = data.inputs.index(b.signal)
-            u[:, j] = apply_block(b, u[:, j])
-        exps.append(dataclasses.replace(e, u=u))
-    return data.with_experiments(exps)
 
 
 def transform_outputs(data: Dataset, fn: Callable[[FloatArray], FloatArray]) -> Dataset:

@@ -105,8 +105,8 @@ def prediction_model(model: Model, reduce: str | int = "minreal") -> LinearPredi
     if isinstance(rep, StateSpace) and rep.has_offsets:
         # y = G(q)(u - u0) + y0: a stable model adds the constant y0 - G(1) u0 to the outputs.
         n = rep.n_states
-        u0 = np.zeros(len(model.inputs)) if rep.u0 is None else np.asarray(rep.u0, float)
-        y_const = np.zeros(ny) if rep.y0 is None else np.asarray(rep.y0, float).copy()
+        u0, y0 = rep.operating_point
+        y_const = y0.copy()
         if np.any(u0 != 0):
             try:
                 gain = rep.C @ np.linalg.solve(np.eye(n) - rep.A, rep.B) + rep.D

@@ -34,8 +34,8 @@ PARSIMONY = 0.01
 
 def select(
     options: Any, data: Dataset
-) -> tuple[int, tuple[int, ...], tuple[int, ...], dict[str, Any]]:
-    """Concrete ``(na, nb, nk)`` for the ``"auto"`` entries of ``options``, and the record."""
+) -> tuple[int, tuple[int, ...], tuple[int, ...], bool, dict[str, Any]]:
+    """Concrete ``(na, nb, nk, offset)`` for the ``"auto"`` entries of ``options``, and the record."""
     nu = data.nu
     record: dict[str, Any] = {}
     if options.nk == "auto":
@@ -45,27 +45,34 @@ def select(
         nk = as_tuple(options.nk, nu)
     na_fixed = None if options.na == "auto" else int(options.na)
     nb_fixed = None if options.nb == "auto" else as_tuple(options.nb, nu)
-    if na_fixed is not None and nb_fixed is not None:
-        return na_fixed, nb_fixed, nk, record
+    offsets = [False, True] if options.offset == "auto" else [bool(options.offset)]
+    if na_fixed is not None and nb_fixed is not None and len(offsets) == 1:
+        return na_fixed, nb_fixed, nk, offsets[0], record
     nas = range(0, options.max_order + 1) if na_fixed is None else [na_fixed]
     nbs: list[tuple[int, ...]] = (
         [(b,) * nu for b in range(1, options.max_order + 1)] if nb_fixed is None else [nb_fixed]
     )
+    pairs = [(na, nb) for na in nas for nb in nbs]
+    if options.equal_orders and na_fixed is None and nb_fixed is None:
+        pairs = [(n, (n,) * nu) for n in range(1, options.max_order + 1)]
     window = max(10, options.max_order + max(nk) + 1)
     folds = _folds(data, window)
     rows = []
-    for na in nas:
-        for nb in nbs:
-            trial = dataclasses.replace(options, na=na, nb=nb, nk=nk, criterion="equation")
+    for offset in offsets:
+        for na, nb in pairs:
+            trial = dataclasses.replace(
+                options, na=na, nb=nb, nk=nk, offset=offset, criterion="equation"
+            )
             try:
                 err = _held_out(trial, folds, window)
             except TendonkitError:
                 continue
-            n_par = na * data.ny + sum(nb)
+            n_par = na * data.ny + sum(nb) + int(offset)
             rows.append(
                 {
                     "na": na,
                     "nb": list(nb),
+                    "offset": offset,
                     "parameters": n_par,
                     "held_out_rms": err,
                 }
@@ -78,7 +85,7 @@ def select(
     for r in rows:
         r["selected"] = r is best
     record["candidates"] = rows
-    return int(best["na"]), tuple(best["nb"]), nk, record
+    return int(best["na"]), tuple(best["nb"]), nk, bool(best["offset"]), record
 
 
 def as_tuple(v: Any, n: int) -> tuple[int, ...]:

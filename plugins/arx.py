@@ -75,10 +75,14 @@ class ARX:
         stored in the provenance.
     max_order : int
         Largest ``na`` and ``nb`` the automatic choice tries.
+    equal_orders : bool
+        The automatic choice tries ``na = nb`` only (``max_order`` candidates instead of
+        ``(max_order + 1) · max_order``): what ``diagnose`` uses to choose its baseline.
     max_delay : int
         Largest delay the automatic choice tries.
-    offset : bool
-        Also estimate a constant offset per output.
+    offset : bool or "auto"
+        Also estimate a constant offset per output; ``"auto"`` chooses with and without by the
+        same cross-validation as the orders.
     ridge : float
         Tikhonov regularisation weight on the (scaled) parameters; 0 for plain least squares.
     bilinear : bool
@@ -107,8 +111,9 @@ class ARX:
     nb: int | tuple[int, ...] | Literal["auto"] = 8
     nk: int | tuple[int, ...] | Literal["auto"] = 1
     max_order: int = 10
+    equal_orders: bool = False
     max_delay: int = 10
-    offset: bool = False
+    offset: bool | Literal["auto"] = False
     ridge: float = 0.0
     bilinear: bool = False
     criterion: str = "equation"
@@ -132,6 +137,10 @@ class ARX:
                 p.append(f"{key} must be an integer >= {int(key == 'max_order')}, found {val!r}.")
         if not isinstance(self.ridge, int | float) or not np.isfinite(self.ridge) or self.ridge < 0:
             p.append(f"ridge must be a number >= 0, found {self.ridge!r}.")
+        if not isinstance(self.equal_orders, bool):
+            p.append(f"equal_orders must be true or false, found {self.equal_orders!r}.")
+        if not (isinstance(self.offset, bool) or self.offset == "auto"):
+            p.append(f"offset must be true, false or 'auto', found {self.offset!r}.")
         if not isinstance(self.bilinear, bool):
             p.append(f"bilinear must be true or false, found {self.bilinear!r}.")
         if self.criterion not in ("equation", "simulation"):
@@ -152,7 +161,7 @@ class ARX:
     @property
     def automatic(self) -> bool:
         """Whether any of ``na``, ``nb``, ``nk`` is chosen from the data."""
-        return "auto" in (self.na, self.nb, self.nk)
+        return "auto" in (self.na, self.nb, self.nk, self.offset)
 
     def orders(self, nu: int) -> tuple[list[int], list[int]]:
         """Per-input ``nb`` and ``nk`` lists for ``nu`` inputs (given, not ``"auto"``)."""
@@ -174,7 +183,9 @@ class ARX:
         lag = max([self.n_a, *[k + b - 1 for k, b in zip(nk, nb)], 0])
         if self.bilinear:
             lag = max([lag, *[max(k, 1) for k in nk]])
-        n_par = self.n_a * ny + sum(nb) + int(self.offset) + (nu * ny if self.bilinear else 0)
+        n_par = (
+            self.n_a * ny + sum(nb) + int(self.offset is True) + (nu * ny if self.bilinear else 0)
+        )
         require_samples(dataset, lag + 1, f"arx(na={self.n_a}, nb={self.nb}, nk={self.nk})")
         rows = sum(e.n_samples - lag for e in dataset.experiments)
         if rows < n_par:
@@ -192,11 +203,13 @@ class ARX:
 
     def _identify_automatic(self, dataset: Dataset) -> Model:
         with one_blas_thread():
-            na, nb, nk, record = _arx_structure.select(self, dataset)
-        chosen = dataclasses.replace(self, na=na, nb=nb, nk=nk)
+            na, nb, nk, offset, record = _arx_structure.select(self, dataset)
+        chosen = dataclasses.replace(self, na=na, nb=nb, nk=nk, offset=offset)
         model = chosen.identify(dataset)
         prov = model.provenance
         note = f"structure selected on the training data: na={na}, nb={list(nb)}, nk={list(nk)}"
+        if self.offset == "auto":
+            note += f", offset={offset}"
         return model.replace(
             provenance=dataclasses.replace(
                 prov,
@@ -205,7 +218,7 @@ class ARX:
                 details={
                     **prov.details,
                     **record,
-                    "selected": {"na": na, "nb": list(nb), "nk": list(nk)},
+                    "selected": {"na": na, "nb": list(nb), "nk": list(nk), "offset": offset},
                 },
             )
         )
@@ -214,7 +227,10 @@ class ARX:
         self, dataset: Dataset, nb: list[int], nk: list[int], lag: int
     ) -> tuple[FloatArray, FloatArray, tuple[Term, ...]]:
         Phi = np.vstack(
-            [_regressors(e.u, e.y, self.n_a, nb, nk, lag, self.offset) for e in dataset.experiments]
+            [
+                _regressors(e.u, e.y, self.n_a, nb, nk, lag, self.offset is True)
+                for e in dataset.experiments
+            ]
         )
         Y = np.vstack([e.y[lag:] for e in dataset.experiments])
         terms = bilinear_terms(dataset, nk) if self.bilinear else ()
@@ -237,7 +253,7 @@ class ARX:
     ) -> Model:
         nu, ny = dataset.nu, dataset.ny
         n_lin = theta.shape[0] - len(terms)
-        rep = _to_representation(theta[:n_lin], self.n_a, nb, nk, ny, nu, self.offset)
+        rep = _to_representation(theta[:n_lin], self.n_a, nb, nk, ny, nu, self.offset is True)
         if terms:
             rep = dataclasses.replace(rep, terms=terms, term_coefficients=theta[n_lin:].copy())
         return build_model(self, dataset, rep)

@@ -76,7 +76,11 @@ class InputDelay:
     name = "input_delay"
     cause = "input_delay"
     description = "Input delay: every input reaches the system d samples later."
+    #: Every whole delay up to this is tried; longer ones on a coarse grid (:meth:`delays`).
     max_delay = 8
+    #: Longest delay tried, in samples, and the share of the shortest experiment it may take.
+    max_far_delay = 160
+    far_share = 0.05
     #: Fractions of a sample tried around the best whole delay.
     fractions = (-0.75, -0.5, -0.25, 0.25, 0.5, 0.75)
 
@@ -96,10 +100,20 @@ class InputDelay:
             params = {"samples": d, "seconds": d * ctx.train.dt}
             return params, _with_input_blocks(ctx, blocks_of(d))
 
-        whole = ctx.select([candidate(d) for d in range(1, self.max_delay + 1)])
+        grid = self.delays(ctx.train)
+        whole = ctx.select([candidate(d) for d in grid])
         if whole[1] is None:
             return None
         best_d = whole[0]["samples"]
+        if best_d > self.max_delay:
+            # between the coarse grid's neighbours of the best delay, every whole delay
+            i = grid.index(best_d)
+            lo, hi = grid[i - 1] + 1, (grid[i + 1] if i + 1 < len(grid) else best_d + 1)
+            fine = [d for d in range(lo, hi) if d != best_d]
+            near = ctx.select([candidate(d) for d in fine])
+            if near[2] > whole[2]:
+                whole = near
+                best_d = whole[0]["samples"]
         # at least one sample: a shorter delay of a zero-order-held input is a blend of two
         # samples, which is a detail of the sampling instant, not a transport delay
         fractions = [best_d + f for f in self.fractions if best_d + f >= 1]
@@ -109,6 +123,25 @@ class InputDelay:
             ctx, params, blocks_of(params["samples"]), model, score
         )
         return ctx.extension(params, model, score, self.description)
+
+    def delays(self, train: Dataset) -> list[int]:
+        """Whole delays tried: 1..max_delay, then steps of 25 % as far as the data support.
+
+        A slow process sampled fast has a dead time of tens of samples (measured: a two-tank
+        process at 1 s with 12-30 samples); a fixed limit of 8 turned those into an
+        ``actuator_lag``.  The limit is ``far_share`` of the shortest experiment (so that most
+        of every record still relates an input to its output), at most ``max_far_delay``.
+        """
+        shortest = min(e.n_samples for e in train.experiments)
+        limit = min(self.max_far_delay, int(self.far_share * shortest))
+        out = list(range(1, self.max_delay + 1))
+        d = self.max_delay
+        while True:
+            d = max(d + 1, round(d * 1.25))
+            if d > limit:
+                break
+            out.append(d)
+        return out
 
     def signature(
         self, ctx: Context, baseline: Model, valid: Dataset, res: ResidualAnalysis

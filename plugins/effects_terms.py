@@ -13,6 +13,7 @@ the one with the best training simulation fit (:meth:`tendonkit.diagnose.Context
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from typing import Any
 
@@ -27,7 +28,7 @@ from tendonkit.diagnose import (
     refit_with_input_blocks,
 )
 from tendonkit.hookspecs import hookimpl
-from tendonkit.schema import Block, Model
+from tendonkit.schema import ARX, Block, Model
 from tendonkit.terms import Factor, Term
 
 
@@ -175,6 +176,26 @@ class CoulombFriction(_TermEffect):
                 # zero at rest, so the asymmetry is not a constant load (that is gravity's).
                 sq = [Term((t.factors[0], t.factors[0])) for t in terms]
                 out.append(({**params, "asymmetric": True}, [*terms, *sq]))
+        # An output that is itself a speed (a tachometer, a flow): the friction force follows
+        # the sign of the output, not of its difference.  Only for outputs that reverse (a
+        # speed of one sign has no sign to follow).
+        reverses = [bool(np.mean(y[:, j] > 0) > 0.05 and np.mean(y[:, j] < 0) > 0.05)
+                    for j in range(y.shape[1])]  # fmt: skip
+        if any(reverses):
+            for q in (0.02, 0.2):
+                eps = np.quantile(np.abs(y), q, axis=0)
+                eps = np.where(eps > 0, eps, np.max(np.abs(y), axis=0) * 1e-3 + 1e-12)
+                terms = [
+                    Term((Factor(name, fn="tanh", lag=1, scale=float(1.0 / eps[j])),))
+                    for j, name in enumerate(ctx.train.outputs)
+                    if reverses[j]
+                ]
+                params = {
+                    "structure": "sign of the output (a speed)",
+                    "epsilon": [float(e) for e in eps],
+                    "asymmetric": False,
+                }
+                out.append((params, terms))
         return out
 
     def signature(
@@ -212,13 +233,24 @@ class NonlinearStiffness(_TermEffect):
         mu = y.mean(axis=0)
         sd = np.where(y.std(axis=0) > 0, y.std(axis=0), 1.0)
         outs: list[tuple[dict[str, Any], list[Term]]] = []
-        for powers in ((3,), (3, 5)):
-            terms = [
-                Term((Factor(name, power=p, lag=1, scale=float(1 / sd[j]), offset=float(mu[j])),))
-                for p in powers
-                for j, name in enumerate(ctx.train.outputs)
-            ]
-            outs.append(({"structure": "odd powers", "powers": list(powers)}, terms))
+        # A spring is odd about its rest position: the mean of the output, or its zero when
+        # the output is measured from rest (an odd power about the mean is not odd about zero:
+        # its even part would be left for another effect to pick up).
+        lo, hi = y.min(axis=0), y.max(axis=0)
+        centres = {"mean": mu}
+        if np.all((lo < 0) & (hi > 0)):
+            centres["zero"] = np.zeros_like(mu)
+        for centre, c in centres.items():
+            for powers in ((3,), (3, 5)):
+                terms = [
+                    Term(
+                        (Factor(name, power=p, lag=1, scale=float(1 / sd[j]), offset=float(c[j])),)
+                    )
+                    for p in powers
+                    for j, name in enumerate(ctx.train.outputs)
+                ]
+                params = {"structure": "odd powers", "powers": list(powers), "about": centre}
+                outs.append((params, terms))
         # A spring whose stiffness changes and then levels off (softening that saturates, or a
         # stop): tanh of the output at a few scales.  Bounded, so a softening fit cannot make
         # the simulation run away the way a negative cubic does at large amplitude.
@@ -257,6 +289,18 @@ class NonlinearStiffness(_TermEffect):
             "large_output_concentration": large,
             "signal": "cube of the output",
         }
+
+
+def _without_offset(ctx: Context) -> float | None:
+    """Training score of the baseline refitted without its constant (None if it has none)."""
+    rep = ctx.baseline.representation
+    if not isinstance(rep, ARX) or rep.offset is None:
+        return None
+    bare = ctx.baseline.replace(representation=dataclasses.replace(rep, offset=None))
+    try:
+        return ctx.score(extend_with_terms(bare, ctx.train, []))
+    except (np.linalg.LinAlgError, ValueError, FloatingPointError, OverflowError):
+        return None
 
 
 class Gravity(_TermEffect):
@@ -303,9 +347,36 @@ class Gravity(_TermEffect):
         # no load: < 1 % (robot, Duffing systems, linear systems).
         misfit = 100.0 - ctx.baseline_score
         supported = model is not None and 100.0 - score <= (1.0 - self.load_share) * misfit
+        without = _without_offset(ctx)
+        if without is not None:
+            # The baseline has an operating point already (diagnose's automatic baseline
+            # chooses one): the load is judged by what that constant does, the same share of
+            # the misfit the baseline would have without it.
+            supported = 100.0 - ctx.baseline_score <= (1.0 - self.load_share) * (100.0 - without)
         if not supported or len(cands) == 1:
             return ctx.extension(params, model, score, self.description)
+        if without is not None and not self._even_part_supported(ctx, cands):
+            # With the operating point in the baseline, the constant says nothing, and the
+            # odd part of a weight's torque (sin y) is what a stiffness adds too: gravity is
+            # told by the even part (cos y), which must remove its share of the misfit that
+            # the odd part leaves (Silverbox, a Duffing circuit whose input has a mean, gained
+            # +11.25 with sin+cos against the stiffness's +11.21, with no even part at all).
+            return ctx.extension(params, model, score, self.description)
         return ctx.best_extension(cands, self.description)
+
+    def _even_part_supported(self, ctx: Context, cands: list[Any]) -> bool:
+        """Does ``cos y`` remove ``load_share`` of the misfit that ``sin y`` leaves?"""
+        full = [c for c in cands if any("sin(" in t for t in c[0].get("terms", []))]
+        if not full:
+            return True
+        p_full, build_full = full[0]
+        terms = [t for t in p_full["terms"] if not t.startswith("cos(")]
+        odd = [Term((Factor(n, fn="sin", lag=1),)) for n in ctx.train.outputs] + [Term()]
+        _, _, s_odd, _ = ctx.select(
+            [({"terms": terms}, lambda d: extend_with_terms(ctx.baseline, d, odd))]
+        )
+        _, _, s_full, _ = ctx.select([(p_full, build_full)])
+        return bool(100.0 - s_full <= (1.0 - self.load_share) * (100.0 - s_odd))
 
     def signature(
         self, ctx: Context, baseline: Model, valid: Dataset, res: ResidualAnalysis
@@ -322,9 +393,97 @@ class Gravity(_TermEffect):
         }
 
 
+def _input_lags(model: Model, m: int) -> list[int]:
+    """The lags at which the model reads input ``m`` (ARX: ``nk .. nk + nb - 1``, at least 1)."""
+    rep = model.representation
+    if isinstance(rep, ARX) and len(rep.B) and len(rep.nk) > m:
+        first = max(int(rep.nk[m]), 1)
+        return list(range(first, int(rep.nk[m]) + len(rep.B)))
+    return [1, 2, 3, 4]
+
+
+def _output_lags(model: Model) -> list[int]:
+    """The lags at which the model reads its outputs (ARX: ``1 .. na``)."""
+    rep = model.representation
+    na = len(rep.A) if isinstance(rep, ARX) else 0
+    return list(range(1, na + 1)) if na else [1, 2]
+
+
+class StaticNonlinearity(_TermEffect):
+    """A memoryless nonlinearity on a signal path: Hammerstein, Wiener, Wiener–Hammerstein."""
+
+    name = "static_nonlinearity"
+    cause = "static_nonlinearity"
+    description = (
+        "Static nonlinearity: a memoryless curve on the input path (Hammerstein: u^2, u^3 or |u| "
+        "at every input lag the model reads), or on the input and output paths (Wiener, "
+        "Wiener-Hammerstein, a sensor curve such as a rectifier: the same powers of the "
+        "outputs at every output lag)."
+    )
+
+    def candidates(self, ctx: Context) -> list[tuple[dict[str, Any], list[Term]]]:
+        base = ctx.baseline
+        u, y = ctx.train.u, ctx.train.y
+        mu_u, sd_u = u.mean(axis=0), np.where(u.std(axis=0) > 0, u.std(axis=0), 1.0)
+        mu_y, sd_y = y.mean(axis=0), np.where(y.std(axis=0) > 0, y.std(axis=0), 1.0)
+
+        def powers(names: tuple[str, ...], lags: list[list[int]], mu, sd, ps) -> list[Term]:  # type: ignore[no-untyped-def]
+            return [
+                Term((Factor(name, power=p, lag=lag, scale=float(1 / sd[j]), offset=float(mu[j])),))
+                for p in ps
+                for j, name in enumerate(names)
+                for lag in lags[j]
+            ]
+
+        in_lags = [_input_lags(base, m) for m in range(len(ctx.train.inputs))]
+        out_lags = [_output_lags(base)] * len(ctx.train.outputs)
+        hammer = powers(ctx.train.inputs, in_lags, mu_u, sd_u, (2, 3))
+        absu = [
+            Term((Factor(name, fn="abs", lag=lag, scale=float(1 / sd_u[j])),))
+            for j, name in enumerate(ctx.train.inputs)
+            for lag in in_lags[j]
+        ]
+        # The output side's even part only: a curve on the signal path (a diode, a rectifier,
+        # an asymmetric sensor) is not odd, while a cubic restoring force is — the odd powers
+        # of the outputs are nonlinear_stiffness's structure, not this one's.
+        wiener = powers(ctx.train.outputs, out_lags, mu_y, sd_y, (2,))
+        return [
+            ({"structure": "Hammerstein", "curve": "cubic polynomial"}, hammer),
+            ({"structure": "Hammerstein", "curve": "|u|"}, absu),
+            (
+                {"structure": "Wiener-Hammerstein", "curve": "cubic in, square out"},
+                hammer + wiener,
+            ),
+            (
+                {"structure": "Wiener-Hammerstein", "curve": "|u| and output polynomial"},
+                absu + wiener,
+            ),
+        ]
+
+    def signature(
+        self, ctx: Context, baseline: Model, valid: Dataset, res: ResidualAnalysis
+    ) -> dict[str, Any]:
+        """Correlation of the residual with the square of the input (even part of a curve)."""
+        out = {}
+        for j, n in enumerate(valid.outputs):
+            best = 0.0
+            for m in range(valid.u.shape[1]):
+                x = valid.u[:, m] - valid.u[:, m].mean()
+                sq = x**2 - np.mean(x**2)
+                c = _corr(res.residual[:, j], sq)
+                best = c if abs(c) > abs(best) else best
+            out[n] = best
+        return {
+            "statistic": "max corr(residual, u^2)",
+            "value": out,
+            "signal": "square of the input",
+        }
+
+
 @hookimpl
 def tendonkit_register_effects(registry):  # type: ignore[no-untyped-def]
     """Register the term-based effects."""
     registry.add(CoulombFriction())
     registry.add(NonlinearStiffness())
     registry.add(Gravity())
+    registry.add(StaticNonlinearity())

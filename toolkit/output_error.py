@@ -33,6 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .dataset import Dataset
+from .errors import SchemaError
 from .identification import training_fit
 from .schema import ARX, Block, Model, SparseMap, StateSpace
 from .simulate import aligned, simulate
@@ -111,7 +112,10 @@ def _codec(model: Model, blocks: bool = True) -> tuple[FloatArray, Callable[[Flo
         for side, chain in (("in", model.input_blocks), ("out", model.output_blocks))
         for i, b in enumerate(chain)
         for name in sorted(b.params)
-        if blocks and (b.kind, name) not in FIXED_BLOCK_PARAMS
+        if blocks
+        and (b.kind, name) not in FIXED_BLOCK_PARAMS
+        # a one-sided clip writes its open end as ±1e300: no limit, not a parameter
+        and abs(b.params[name]) < 1e299
     ]
     theta0 = np.concatenate(
         [arr[mask] for _, arr, mask in parts]
@@ -214,8 +218,15 @@ def refine(
     scale = np.std(data.y, axis=0)
     scale[~(scale > 0)] = 1.0
 
+    n_res = sum(e.y.size for e in data.experiments)
+
     def residuals(theta: FloatArray) -> FloatArray:
-        m = decode(theta)
+        if not np.all(np.isfinite(theta)):
+            return np.full(n_res, np.inf)  # a step that left the parameters' domain
+        try:
+            m = decode(theta)
+        except SchemaError:  # e.g. a saturation whose limits crossed: not a model, step back
+            return np.full(n_res, np.inf)
         errs = []
         with np.errstate(all="ignore"):
             for e in data.experiments:

@@ -25,6 +25,7 @@ CAUSES: tuple[str, ...] = (
     "actuator_lag",
     "nonlinear_stiffness",
     "gravity",
+    "static_nonlinearity",
     "none",
 )
 

@@ -31,6 +31,9 @@ def scaled_lstsq(Phi: FloatArray, Y: FloatArray, ridge: float = 0.0) -> FloatArr
     # lazy: heavy (scipy)
     from scipy.linalg import lstsq
 
+    if not (np.all(np.isfinite(Phi)) and np.all(np.isfinite(Y))):
+        # LAPACK would print to stdout and return garbage; a caller trying candidates skips it
+        raise ValueError("the regressors or targets are not finite (a diverged signal).")
     scale = np.linalg.norm(Phi, axis=0)
     scale[scale == 0] = 1.0
     P = Phi / scale

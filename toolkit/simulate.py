@@ -477,7 +477,10 @@ def estimate_x0(
     for k in range(N):
         obs[k * ny : (k + 1) * ny] = M
         M = M @ rep.A
-    x0, *_ = np.linalg.lstsq(obs, (y[:N] - forced).reshape(-1), rcond=None)
+    rhs = (y[:N] - forced).reshape(-1)
+    if not (np.all(np.isfinite(obs)) and np.all(np.isfinite(rhs))):
+        return np.zeros(n)  # an unstable model's free response overflows: nothing to fit
+    x0, *_ = np.linalg.lstsq(obs, rhs, rcond=None)
     return np.asarray(x0)
 
 

@@ -86,6 +86,10 @@ EXPECTED = {
 PROTOCOL = {"Z": "slack", "nominal_slack": "slack"}
 SEEDS = (1, 2, 3, 4, 5, 6)
 BASELINE = {"na": 3, "nb": 3, "nk": 1, "bilinear": True}
+#: The single-effect suite measures the first step's naming (the calibration below): the
+#: sequence of causes and the refinement are not run there (``test_two_effects_are_both_named``
+#: runs them on plants with two effects).
+FIRST_STEP = {"max_causes": 1, "refine": False}
 #: Smallest gain that names a cause with this baseline (module docstring; default 0.25).
 MIN_GAIN = 0.5
 
@@ -195,7 +199,7 @@ def _run(effect: str, seed: int, protocol: str | None = None):
     protocol = protocol or PROTOCOL.get(effect, "standard")
     train, valid = plant_data(params, seed, commanded=effect in ("D", "F"), protocol=protocol)
     t0 = time.perf_counter()
-    d = diagnose(train, valid, method="arx", options=BASELINE, min_gain=MIN_GAIN)
+    d = diagnose(train, valid, method="arx", options=BASELINE, min_gain=MIN_GAIN, **FIRST_STEP)
     elapsed = time.perf_counter() - t0
     top = ", ".join(f"{f.effect} {f.gain:+.2f} (p_adj {f.p_adjusted:.1e})" for f in d.findings[:3])
     print(f"{effect} seed {seed} {params}: cause {d.cause}; {top}; {elapsed:.1f} s")
@@ -244,6 +248,27 @@ def test_a_dead_zone_below_every_tension_names_no_cause():
     """
     params = {"deadzone_on": True, "deadzone_T": 12.0, "deadzone_w": 2.0}
     train, valid = plant_data(params, 1, commanded=False)
-    d = diagnose(train, valid, method="arx", options=BASELINE, min_gain=MIN_GAIN)
+    d = diagnose(train, valid, method="arx", options=BASELINE, min_gain=MIN_GAIN, **FIRST_STEP)
     top = ", ".join(f"{f.effect} {f.gain:+.2f} (p_adj {f.p_adjusted:.1e})" for f in d.findings[:3])
     assert d.cause == "none", top
+
+
+#: Plants with two hidden effects (seeds the single-effect calibration drew too): both must be
+#: named, in any order, by the sequence of causes with the refinement on.  Friction with a
+#: force-controller lag (A+F) is not named yet: the lag gains +19.7 points on seed 1 but is not
+#: significant on either route, and friction gains nothing until the lag is modelled
+#: (docs/diagnose.md, "Several causes").
+PAIRS = [(("G", "D"), 1), (("G", "D"), 2)]
+
+
+@pytest.mark.parametrize(("pair", "seed"), PAIRS, ids=[f"{a}+{b}-{s}" for (a, b), s in PAIRS])
+def test_two_effects_are_both_named(pair, seed):
+    params = {**draw(pair[0], seed), **draw(pair[1], seed)}
+    commanded = any(e in ("D", "F") for e in pair)
+    train, valid = plant_data(params, seed, commanded=commanded)
+    d = diagnose(train, valid, method="arx", options=BASELINE, min_gain=MIN_GAIN)
+    chain = [(s.cause, round(s.gain, 2), s.p_adjusted) for s in d.steps]
+    print(f"{'+'.join(pair)} seed {seed} {params}: causes {d.causes}; {chain}")
+    assert {EXPECTED[pair[0]], EXPECTED[pair[1]]} <= set(d.causes), chain
+    assert all(s.gain > 0 for s in d.steps if s.cause != "none")
+    assert "refined by simulation error" in d.extended.provenance.notes

@@ -15,6 +15,10 @@ and convention, next to the published figures (run ``pytest -s`` to see them).
 
 from __future__ import annotations
 
+import functools
+import importlib.util
+from pathlib import Path
+
 import numpy as np
 import pytest
 from conftest import REAL_DATA
@@ -69,12 +73,13 @@ def test_silverbox_is_nonlinear_stiffness():
     path = REAL_DATA / "silverbox" / "silverbox_SNLS80mV.csv"
     train = _slice(path, 40650, 105712, "train")
     valid = _slice(path, 105712, 127400, "test_multisine")
-    d = diagnose(train, valid, method="arx")
+    d = diagnose(train, valid)  # default options: the baseline chooses itself
     # Published (README): GRU/LSTM 1.5 mV, MLP-FIR 18.9 mV; ARX(2, 8) 7.13 mV and 1.77 mV
     # with one cubic regressor.  RMSE on y[50:] in mV.
     _report("Silverbox", d, valid, 50, 1e3, "mV (published: ARX 7.13, +cubic 1.77, LSTM 1.5)")
     assert d.cause == "nonlinear_stiffness"
     assert d.best is not None and d.best.gain > 0
+    assert d.baseline_choice is not None and d.baseline_method == "arx"
 
 
 def test_cascaded_tanks_is_saturation(tmp_path):
@@ -103,6 +108,78 @@ def test_cascaded_tanks_is_saturation(tmp_path):
         in text
     )
     assert "the fit gain alone: p = 0." in text
-    assert "nonlinear_stiffness gains more" in text and "not significant" in text
+    # A general static curve (the Bernoulli outflow's square root, and the clip) gains more;
+    # the clip, a special case of it, is what the data show.
+    assert "static_nonlinearity gains more" in text and "special case" in text
     html = write_report(d, valid, tmp_path / "report").read_text()
     assert "Seen in the data" in html
+
+
+# -- default options on every dataset (issue 18) -------------------------------------------------
+
+BENCH = Path(__file__).resolve().parents[2] / "benchmarks" / "bench_real.py"
+
+
+@functools.cache
+def _cases() -> dict[str, tuple[Dataset, Dataset]]:
+    """Training and validation (the official test records) per dataset, from bench_real.py."""
+    spec = importlib.util.spec_from_file_location("bench_real", BENCH)
+    assert spec is not None and spec.loader is not None
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    out = {}
+    for name, train, tests in bench.cases():
+        exps = tuple(e for _, test, _ in tests[:1] + tests[1:2] * (name == "Coupled electric drives")
+                     for e in test.experiments)  # fmt: skip
+        out[name] = (train, train.with_experiments(list(exps)))
+    return out
+
+
+#: What the issue asks diagnose to name with default options, and what stands in the way where
+#: it does not yet (docs/diagnose.md, "Real data with default options").
+DEFAULTS = {
+    "EMPS": (
+        "coulomb_friction",
+        "friction gains most (+31.9, p_adj 3e-80) but a 3.75-sample input delay (+27.2, one "
+        "parameter against friction's two) is significant too and friction does not beat it "
+        "significantly on either route: parsimony names the delay, friction is in the tie",
+    ),
+    "Cascaded tanks": (
+        "saturation",
+        "the automatic baseline (ARX(4, 4) with an offset, dead "
+        "time 3 left out) leaves nothing significant: the output clip's gain is "
+        "+0.5 and it is an input clip that fits the training data best, so the "
+        "direct test (37 samples at 10 V) is not made",
+    ),
+    "Coupled electric drives": (
+        "static_nonlinearity",
+        "the two 100-sample test records give "
+        "the delay left out of the baseline (+20.8, p_adj 8e-4) first; "
+        "the rectifier's static curve gains +14 but is not significant",
+    ),
+    "Bouc-Wen": (
+        "hysteresis",
+        "no hysteresis effect exists yet (docs/diagnose.md, Not yet "
+        "built); the hysteretic force is named coulomb_friction (+3.9)",
+    ),
+}
+
+
+@pytest.mark.parametrize(
+    "name",
+    [
+        *[
+            pytest.param(n, marks=pytest.mark.xfail(strict=True, reason=why))
+            for n, (_, why) in DEFAULTS.items()
+        ],
+    ],
+)
+def test_default_options_name_the_known_effect(name):
+    """``diagnose TRAIN VALID`` with no option, on the official split (the test record as
+    validation).  Strict expected failures: each fails the suite the day it passes."""
+    train, valid = _cases()[name]
+    d = diagnose(train, valid)
+    top = ", ".join(f"{f.effect} {f.gain:+.2f} (p_adj {f.p_adjusted:.1e})" for f in d.findings[:3])
+    print(f"\n{name} (defaults): causes {d.causes}; {top}")
+    assert d.cause == DEFAULTS[name][0], top
+    assert d.best is not None and d.best.gain > 0

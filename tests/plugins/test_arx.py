@@ -229,7 +229,7 @@ def test_automatic_structure_finds_delays_per_input_and_orders():
     ds = tk.Dataset.from_arrays(u, y, 0.03, truth.input_names, truth.output_names)
     m = tk.identify(ds, "arx", na="auto", nb="auto", nk="auto", max_order=4, max_delay=5)
     sel = m.provenance.details["selected"]
-    assert sel == {"na": 2, "nb": [2, 2, 2], "nk": [1, 2, 3]}
+    assert sel == {"na": 2, "nb": [2, 2, 2], "nk": [1, 2, 3], "offset": False}
     assert [d["delay"] for d in m.provenance.details["delays"]] == [1, 2, 3]
     table = m.provenance.details["candidates"]
     assert len(table) == 5 * 4 and sum(r["selected"] for r in table) == 1
@@ -237,6 +237,27 @@ def test_automatic_structure_finds_delays_per_input_and_orders():
     # the one-step loss keeps falling with the order; the held-out simulation error does not
     chosen = next(r for r in table if r["selected"])
     assert chosen["held_out_rms"] <= min(r["held_out_rms"] for r in table) * 1.01
+
+
+def test_offset_auto_and_equal_orders_choose_an_operating_point_where_there_is_one():
+    """offset="auto" tries each order with and without an offset; equal_orders only na = nb."""
+    rng = np.random.default_rng(4)
+    u = rng.normal(size=(3000, 1))
+    y = np.zeros(3000)
+    for k in range(2, 3000):
+        y[k] = 1.2 * y[k - 1] - 0.5 * y[k - 2] + 0.3 * u[k - 1, 0] + 0.4  # a constant load
+    y = y + 0.01 * rng.normal(size=3000)
+    ds = tk.Dataset.from_arrays(u, y[:, None], 0.01, ["u"], ["y"])
+    m = tk.identify(ds, "arx", na="auto", nb="auto", offset="auto", equal_orders=True,
+                    max_order=4)  # fmt: skip
+    table = m.provenance.details["candidates"]
+    assert len(table) == 4 * 2 and all(r["na"] == r["nb"][0] for r in table)
+    assert m.provenance.details["selected"]["offset"] is True
+    assert m.representation.offset is not None and "offset=True" in m.provenance.notes
+    without = [r for r in table if not r["offset"]]
+    assert min(r["held_out_rms"] for r in without) > 10 * min(r["held_out_rms"] for r in table)
+    with pytest.raises(tk.errors.OptionError, match="offset"):
+        tk.identify(ds, "arx", offset="sometimes")
 
 
 def test_auto_is_accepted_from_the_command_line_form():

@@ -33,7 +33,12 @@ def add_commands(sub: Any) -> None:
     p.add_argument("valid", help="validation CSV (never used to fit or choose anything)")
     p.add_argument("--inputs", required=True, help="input columns, comma separated")
     p.add_argument("--outputs", required=True, help="output columns, comma separated")
-    p.add_argument("--method", default="arx", help="baseline identifier (default: arx)")
+    p.add_argument(
+        "--method",
+        default="auto",
+        help="baseline identifier; 'auto' (default): an ARX whose dead times, orders and offset "
+        "are chosen on the training data (--option then overrides the ARX options)",
+    )
     p.add_argument("--option", action="append", metavar="KEY=VALUE", help="baseline option")
     p.add_argument("--effects", help="effects to try, comma separated (default: all registered)")
     p.add_argument("--alpha", type=float, default=0.01, help="significance level (default 0.01)")
@@ -48,6 +53,19 @@ def add_commands(sub: Any) -> None:
         type=float,
         default=0.25,
         help="smallest validation gain, in points of fit, that can name a cause (default 0.25)",
+    )
+    p.add_argument(
+        "--max-causes",
+        type=int,
+        default=3,
+        help="most causes named in sequence, each step extending the model of the step before "
+        "(default 3; 1 stops at the first cause)",
+    )
+    p.add_argument(
+        "--no-refine",
+        action="store_true",
+        help="keep the named extensions as fitted by least squares (by default each is refined "
+        "by its simulation error before it is reported and extended further)",
     )
     p.add_argument("--seed", type=seed_argument, default=0, help="seed for every random choice")
     p.add_argument(
@@ -68,7 +86,11 @@ def add_commands(sub: Any) -> None:
 def cmd_diagnose(args: argparse.Namespace) -> int:
     """Find what the baseline model gets wrong, name the cause, extend and measure the gain."""
     problems: list[str] = []
+    auto = args.method == "auto"
+    if auto:  # the automatic baseline is an ARX: its options are checked as such
+        args.method = "arx"
     inputs, outputs, options, _ = identifier_arguments(args, problems)
+    method = "auto" if auto else args.method
     chosen = split_names(args.effects) if args.effects is not None else None
     if args.effects is not None and not chosen:
         problems.append(f"--effects {args.effects!r} names no effect.")
@@ -103,7 +125,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         result = diagnose(
             train,
             valid,
-            method=args.method,
+            method=method,
             options=options,
             effects=chosen,
             alpha=args.alpha,
@@ -112,6 +134,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
             seed=args.seed,
             progress=sys.stderr.isatty(),
             fallback=not args.no_fallback,
+            max_causes=args.max_causes,
+            refine=not args.no_refine,
         )
         model_path = args.model or (
             str(Path(args.report) / "extended_model.json") if args.report else None
@@ -136,6 +160,9 @@ def render_diagnosis(summary: dict[str, Any]) -> str:
         f"cause: {summary['cause']}",
         f"baseline ({summary['baseline']['method']}): fit {summary['baseline']['fit']:.2f} %",
     ]
+    choice = summary["baseline"].get("choice")
+    if choice:
+        lines.append(f"note: {choice['statement']}")
     check = summary["baseline"].get("check")
     if check and check["biased"]:
         what = (
@@ -155,6 +182,40 @@ def render_diagnosis(summary: dict[str, Any]) -> str:
         lines.append(
             f"extended ({ext['effect']}): fit {ext['fit']:.2f} % (gain {ext['gain']:+.2f} points)"
             + (f", model: {ext['model']}" if ext.get("model") else "")
+        )
+    sequence = summary.get("sequence") or []
+    if len(sequence) > 1 or (sequence and sequence[0].get("stop")):
+        lines.append("sequence of causes (each step extends the model of the step before):")
+        for st in sequence:
+            if st["cause"] == "none":
+                lines.append(
+                    f"  {st['step']}. nothing more significant (best of "
+                    f"{len(st['findings'])} effects tried: "
+                    + (
+                        f"{st['findings'][0]['cause']} {st['findings'][0]['gain']:+.2f} points"
+                        if st["findings"] and st["findings"][0].get("gain") is not None
+                        else "none"
+                    )
+                    + ")"
+                )
+                continue
+            lines.append(
+                f"  {st['step']}. {st['cause']} ({st['effect']}): fit {st['fit_before']:.2f} -> "
+                f"{st['fit']:.2f} % (gain {st['gain']:+.2f} points, p_adj={st['p_adjusted']:.3g})"
+            )
+            if st.get("ambiguous"):
+                lines.append(f"     tie: {st['ambiguous']['statement']}")
+            if st.get("stop"):
+                lines.append(f"     stopped: {st['stop']}")
+        lines.append(
+            f"final model: fit {ext['fit']:.2f} % (total gain {ext['total_gain']:+.2f} points), "
+            f"causes: {', '.join(summary['causes'])}"
+        )
+    before, after = summary["baseline"].get("rmse_per_output"), ext.get("rmse_per_output")
+    if before and after and summary["cause"] != "none":
+        lines.append(
+            "validation RMSE (output units): "
+            + ", ".join(f"{n} {before[n]:.4g} -> {after[n]:.4g}" for n in after if n in before)
         )
     if summary.get("margin_to_runner_up") is not None:
         lines.append(f"margin to runner-up: {summary['margin_to_runner_up']:.2f} points")

@@ -32,7 +32,7 @@ from .extend import (
     transform_inputs,
     transform_outputs,
 )
-from .findings import DEFAULT_EXPERIMENT, DISCRIMINATING, Diagnosis, Finding
+from .findings import DEFAULT_EXPERIMENT, DISCRIMINATING, Diagnosis, Finding, Step
 from .residuals import ResidualAnalysis
 
 __all__ = [
@@ -47,6 +47,7 @@ __all__ = [
     "Extension",
     "Finding",
     "ResidualAnalysis",
+    "Step",
     "added_parameters",
     "atom_test",
     "check_baseline",

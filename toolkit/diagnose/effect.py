@@ -158,7 +158,13 @@ class Context:
             params=params,
             description=description,
             train_gain=score - self.baseline_score,
+            build=self.builder_of(model),
         )
+
+    def builder_of(self, model: Model) -> Callable[[Dataset], Model] | None:
+        """The ``build`` that :meth:`select` made ``model`` with (None if it did not)."""
+        entry = self._cache.get("builders", {}).get(id(model))
+        return entry[1] if entry is not None and entry[0] is model else None
 
     def select(
         self, candidates: Iterable[tuple[dict[str, Any], Callable[[Dataset], Model]]]
@@ -180,6 +186,9 @@ class Context:
             tried.append({"params": params, "score": score})
             if score > best[2]:
                 best = (params, model, score)
+                # Remembered so that a named extension can be refitted as the next step's
+                # baseline (diagnose's sequence of causes): the model and its builder together.
+                self._cache.setdefault("builders", {})[id(model)] = (model, build)
         return best[0], best[1], best[2], tried
 
 
@@ -193,6 +202,11 @@ class Extension:
     #: Gain of the training simulation fit (points).  It sets the effect's share of the error
     #: budget in the weighted Holm adjustment; 0 or less means the effect cannot name a cause.
     train_gain: float = 0.0
+    #: ``build(data) -> Model``: the same structure fitted on other data.  When the extension
+    #: names a cause, it is the refit of the next step of the sequence (its effects extend this
+    #: model).  Set by :meth:`Context.extension` for models chosen with :meth:`Context.select`;
+    #: without it the sequence stops after this cause.
+    build: Callable[[Dataset], Model] | None = None
 
     @property
     def n_params(self) -> int:

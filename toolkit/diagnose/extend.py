@@ -56,7 +56,8 @@ def extend_with_terms(
     """Refit ``model`` on ``data`` with the extra regressors ``terms`` (see module docstring).
 
     Terms are written in output-equation time: they read outputs and inputs with lag >= 1.
-    Existing terms of the model are kept and refitted.  For a state-space model, ``refit`` (the
+    Existing terms of the model are kept and refitted, and its input blocks kept (the inputs
+    are passed through them first).  For a state-space model, ``refit`` (the
     baseline's identifier) is run with Θ — computed from the measured outputs — as extra
     inputs, so ``A``, ``B`` and ``E`` are estimated together; without it, ``A`` and ``C`` are
     kept and ``B``, ``D``, ``E``, ``x0`` are refitted by output-error least squares.
@@ -64,6 +65,10 @@ def extend_with_terms(
     data = aligned(model, data)
     terms = tuple(terms)
     rep = model.representation
+    if model.input_blocks and isinstance(rep, ARX | SparseMap):
+        # The regressors are what the representation sees: inputs after the model's blocks
+        # (an extension of an already extended model, e.g. the next step of a diagnosis).
+        data = transform_inputs(data, model.input_blocks)
     if isinstance(rep, ARX):
         new = _extend_arx(model, rep, data, terms)
     elif isinstance(rep, SparseMap):

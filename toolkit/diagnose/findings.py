@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 
 from ..schema import Model
 from .residuals import ResidualAnalysis
-from .stats import loss_test
+from .stats import routes_p_value
 
 FloatArray = NDArray[np.float64]
 
@@ -54,10 +54,34 @@ DISCRIMINATING: dict[frozenset[str], str] = {
         "a slow ramp to large amplitude: saturation flattens the response at a level, a "
         "hardening or softening stiffness keeps changing the slope smoothly."
     ),
+    frozenset({"static_nonlinearity", "nonlinear_stiffness"}): (
+        "a swept sine at one amplitude and the same sweep at a larger one: a static curve on the "
+        "signal path distorts the response at every frequency alike, a nonlinear stiffness "
+        "shifts the resonance with the amplitude (and jumps near it)."
+    ),
+    frozenset({"static_nonlinearity", "saturation"}): (
+        "a slow ramp through the whole range: saturation is flat beyond a level, a static curve "
+        "keeps bending (and may be asymmetric or non-monotone, as a rectifier)."
+    ),
+    frozenset({"static_nonlinearity", "dead_zone"}): (
+        "a slow ramp through zero: a dead zone passes nothing inside its band and is linear "
+        "outside it, a static curve bends everywhere."
+    ),
+    frozenset({"static_nonlinearity", "hysteresis"}): (
+        "a slow triangle wave: a static curve gives the same output going up and down, "
+        "hysteresis a loop."
+    ),
     frozenset({"dead_zone", "backlash"}): (
         "a slow triangle wave: a dead zone on an input is symmetric about its centre and has no "
         "memory; backlash depends on the direction of motion (a loop, not a flat band)."
     ),
+}
+
+#: Causes that are special cases of a more general one: when the general one gains most, a
+#: significant special case is named instead (it says more: a clip at a level, a band of a
+#: width), and the general one's extra gain is reported beside it.
+SPECIAL_CASES: dict[str, tuple[str, ...]] = {
+    "static_nonlinearity": ("saturation", "dead_zone"),
 }
 
 DEFAULT_EXPERIMENT = (
@@ -111,6 +135,55 @@ class Finding:
 
 
 @dataclass(frozen=True)
+class Step:
+    """One step of a diagnosis's sequence of causes (:attr:`Diagnosis.steps`).
+
+    Step 1 starts from the baseline, step ``k`` from the model step ``k - 1`` named.  The last
+    step is the one where nothing more was significant (``cause == "none"``), unless the
+    sequence stopped at ``max_causes``.
+    """
+
+    index: int
+    cause: str
+    effect: str | None
+    #: Validation gain over the model the step started from (points of mean fit).
+    gain: float
+    fit_before: dict[str, float]
+    #: Validation fit of :attr:`model` (refined by simulation error when diagnose refines).
+    fit: dict[str, float]
+    #: Validation fit of the extension as tested (its equation-error estimate).
+    tested_fit: dict[str, float]
+    p_adjusted: float | None
+    params: dict[str, Any]
+    n_params: int
+    model: Model | None
+    findings: tuple[Finding, ...]
+    ambiguous: dict[str, Any] | None
+    skipped: tuple[dict[str, str], ...] = ()
+    #: Why the sequence stopped after this step, when it was not for lack of evidence.
+    stop: str | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready form (without the model)."""
+        return {
+            "step": self.index,
+            "cause": self.cause,
+            "effect": self.effect,
+            "gain": self.gain,
+            "fit_before": _mean(self.fit_before),
+            "fit": _mean(self.fit),
+            "tested_fit": _mean(self.tested_fit),
+            "p_adjusted": self.p_adjusted,
+            "params": self.params,
+            "n_params": self.n_params,
+            "ambiguous": self.ambiguous,
+            "stop": self.stop,
+            "findings": [f.to_dict() for f in self.findings],
+            "skipped": list(self.skipped),
+        }
+
+
+@dataclass(frozen=True)
 class Diagnosis:
     """The outcome of :func:`diagnose`."""
 
@@ -129,6 +202,28 @@ class Diagnosis:
     baseline_check: dict[str, Any] | None = None
     #: Why the baseline cannot be diagnosed (its validation fit is not above 0 %), or None.
     unfit: str | None = None
+    #: The sequence of causes, step 1 first (empty when the first step named nothing).  Step
+    #: 1 is this diagnosis's own :attr:`cause` and :attr:`findings`.
+    steps: tuple[Step, ...] = ()
+    #: How the baseline chose its structure (``method="auto"``; :func:`auto_baseline`).
+    baseline_choice: dict[str, Any] | None = None
+    #: Standard deviation of each validation output: the RMSE of a fit ``f`` is
+    #: ``(1 - f / 100) · std`` (:meth:`rmse`), in the output's unit.
+    output_std: dict[str, float] = field(default_factory=dict)
+
+    def rmse(self, fits: dict[str, float]) -> dict[str, float]:
+        """Validation RMSE per output, in the output's unit, of a model with these fits."""
+        return {
+            n: (1.0 - f / 100.0) * self.output_std[n]
+            for n, f in fits.items()
+            if n in self.output_std
+        }
+
+    @property
+    def causes(self) -> tuple[str, ...]:
+        """Every cause named, in the order the sequence named them (``("none",)`` if none)."""
+        named = tuple(s.cause for s in self.steps if s.cause != "none")
+        return named or (self.cause,)
 
     @property
     def best(self) -> Finding | None:
@@ -142,15 +237,26 @@ class Diagnosis:
 
     @property
     def extended(self) -> Model:
-        """The extended model of the named cause, or the baseline when the cause is ``none``."""
+        """The final model: the baseline extended with every cause named (the baseline if none)."""
+        last = self._last_named
+        if last is not None and last.model is not None:
+            return last.model
         best = self.best
         return best.model if best is not None and best.model is not None else self.baseline
 
     @property
     def extended_fit(self) -> dict[str, float]:
         """Validation fit of :attr:`extended`."""
+        last = self._last_named
+        if last is not None:
+            return last.fit
         best = self.best
         return best.fit if best is not None else self.baseline_fit
+
+    @property
+    def _last_named(self) -> Step | None:
+        named = [s for s in self.steps if s.cause != "none"]
+        return named[-1] if named else None
 
     def to_dict(self, model_path: str | None = None) -> dict[str, Any]:
         """JSON-ready form; ``model_path`` is where the extended model was saved."""
@@ -162,16 +268,25 @@ class Diagnosis:
                 "fit": _mean(self.baseline_fit),
                 "fit_per_output": self.baseline_fit,
                 "check": self.baseline_check,
+                "choice": self.baseline_choice,
+                "rmse_per_output": self.rmse(self.baseline_fit),
                 "unfit": self.unfit,
             },
+            "causes": list(self.causes),
             "extended": {
                 "fit": _mean(self.extended_fit),
                 "fit_per_output": self.extended_fit,
                 "gain": best.gain if best else 0.0,
+                "total_gain": _mean(self.extended_fit) - _mean(self.baseline_fit),
+                "rmse_per_output": self.rmse(self.extended_fit),
                 "effect": best.effect if best else None,
+                "effects": [s.effect for s in self.steps if s.effect]
+                if self.steps
+                else ([best.effect] if best else []),
                 "params": best.params if best else {},
                 "model": model_path,
             },
+            "sequence": [s.to_dict() for s in self.steps],
             "named_effect": best.effect if best else None,
             "margin_to_runner_up": self.margin,
             "runner_up": self.runner_up.cause if self.runner_up else None,
@@ -226,7 +341,13 @@ def evidence_notes(summary: dict[str, Any]) -> list[str]:
     if larger:
         top = larger[0]
         p_adj = top.get("p_adjusted", top["p_value"])
-        if top["significant"]:
+        if top["significant"] and best["cause"] in SPECIAL_CASES.get(top["cause"], ()):
+            notes.append(
+                f"{top['cause']} gains more ({top['gain']:+.2f} points, p_adj = {p_adj:.2g}); "
+                f"{best['cause']} is the special case of it that these data support, and is "
+                "named: a general curve also bends where the named one is flat or straight."
+            )
+        elif top["significant"]:
             notes.append(
                 f"{top['cause']} gains more ({top['gain']:+.2f} points, p_adj = {p_adj:.2g}) "
                 f"with more parameters ({top['n_params']} against {best['n_params']}) and is "
@@ -247,7 +368,7 @@ def _mean(d: dict[str, float]) -> float:
 def _ambiguity(
     findings: list[Finding],
     best: Finding,
-    losses: dict[str, FloatArray],
+    losses: dict[str, tuple[FloatArray, FloatArray | None]],
     tie_ratio: float,
     alpha: float,
 ) -> dict[str, Any] | None:
@@ -256,17 +377,25 @@ def _ambiguity(
     if b is None:
         return None
     a = best
-    test = loss_test(losses[b.effect], losses[a.effect])
-    close = b.gain >= tie_ratio * a.gain or test.p_value >= alpha
+    p_value = routes_p_value(losses[b.effect], losses[a.effect])
+    close = b.gain >= tie_ratio * a.gain or p_value >= alpha
     if not close:
         return None
+    if b.gain > a.gain:
+        statement = (
+            f"{b.cause} gains more than the named {a.cause} ({b.gain:.2f} against {a.gain:.2f} "
+            f"points) and is significant too: both may be at work, or one stands in for the "
+            f"other (one-sided p = {p_value:.3g} that {a.cause} is better)."
+        )
+    else:
+        statement = (
+            f"{a.cause} (gain {a.gain:.2f}) and {b.cause} (gain {b.gain:.2f}) explain these data "
+            f"about equally well (one-sided p = {p_value:.3g} that {a.cause} is better)."
+        )
     return {
         "between": [a.cause, b.cause],
         "gains": [a.gain, b.gain],
-        "p_value": test.p_value,
-        "statement": (
-            f"{a.cause} (gain {a.gain:.2f}) and {b.cause} (gain {b.gain:.2f}) explain these data "
-            f"about equally well (one-sided p = {test.p_value:.3g} that {a.cause} is better)."
-        ),
+        "p_value": p_value,
+        "statement": statement,
         "experiment": DISCRIMINATING.get(frozenset({a.cause, b.cause}), DEFAULT_EXPERIMENT),
     }

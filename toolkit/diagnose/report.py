@@ -74,6 +74,34 @@ def write_report(
             + " Experiment to tell them apart: "
             + diagnosis.ambiguous["experiment"]
         )
+    if len(d["sequence"]) > 1:
+        rep.heading("Sequence of causes")
+        rep.text(
+            "After a cause is named, its extended model is the baseline of the next step, which "
+            "tries the effects of the other causes; the sequence stops at the first step where "
+            "nothing more is significant."
+        )
+        rep.table(
+            ["step", "cause", "fit before [%]", "fit after [%]", "gain [pts]", "adjusted p", "tie"],
+            [
+                [
+                    st["step"],
+                    st["cause"] if st["cause"] != "none" else "nothing more significant",
+                    st["fit_before"],
+                    st["fit"],
+                    st["gain"],
+                    st["p_adjusted"] if st["p_adjusted"] is not None else "",
+                    st["ambiguous"]["statement"] if st.get("ambiguous") else "",
+                ]
+                for st in d["sequence"]
+            ],
+        )
+        rep.text(
+            f"Final model: fit {d['baseline']['fit']:.2f} % -> {d['extended']['fit']:.2f} % "
+            f"(total gain {d['extended']['total_gain']:+.2f} points); causes: "
+            + ", ".join(d["causes"])
+            + "."
+        )
     rep.heading("Ranking of candidate causes (validation data)")
     rows = [
         [
@@ -112,6 +140,8 @@ def write_report(
     sims: dict[str, Any] = {"baseline": simulate_all(diagnosis.baseline, valid)}
     if best is not None and best.model is not None:
         sims[f"extended ({best.cause})"] = simulate_all(best.model, valid)
+    if len(diagnosis.causes) > 1:
+        sims[f"final ({' + '.join(diagnosis.causes)})"] = simulate_all(diagnosis.extended, valid)
     t = np.concatenate([e.t - e.t[0] + (i * 0) for i, e in enumerate(valid.experiments)])
     t = np.arange(len(t)) * valid.dt
     rep.figure(

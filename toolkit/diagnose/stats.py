@@ -144,6 +144,27 @@ def loss_test(
     return LossTest(p, mean, se, b, n // b, tau)
 
 
+def routes_p_value(
+    reference: Sequence[FloatArray | None],
+    alternative: Sequence[FloatArray | None],
+    *,
+    margin: float = 0.0,
+) -> float:
+    """One-sided p-value that ``alternative`` is better, over several routes of evidence.
+
+    Each route is a pair of per-sample losses on the same samples (the free-run simulation,
+    the one-step prediction); a route missing on either side (None) is skipped.  The routes'
+    :func:`loss_test` p-values are combined by Bonferroni, ``k · min(p)``, which keeps the
+    level whatever their dependence.
+    """
+    ps = [
+        loss_test(r, a, margin=margin).p_value
+        for r, a in zip(reference, alternative)
+        if r is not None and a is not None
+    ]
+    return min(1.0, len(ps) * min(ps)) if ps else 1.0
+
+
 def holm(p_values: Sequence[float], weights: Sequence[float] | None = None) -> list[float]:
     """Holm–Bonferroni adjusted p-values, optionally weighted (Holm 1979).
 

@@ -1,0 +1,122 @@
+"""diagnose with default options on a plant it was never tuned on (issue 18): a case generator.
+
+A DC servo measured by its **speed** (a tachometer), not a position: voltage ``u`` drives the
+motor, ``tau_m dω/dt = K u_eff − ω − F(ω)``, ``tau_m = 0.15 s``, sampled at 10 ms with 2 % white
+noise on the output; the input is a band-limited random voltage (rms 1 V) that crosses zero, so
+the motor reverses.  The effects: Coulomb friction on the motor (so on a *speed* output), a dead
+time of 10-20 samples, a dead zone and a saturation of the drive, a drive with a slew limit,
+and a static torque curve ``u + c·u|u|``.  One hidden effect per case, its magnitude drawn in a range from the case's
+seed.  The seeds (700 and up) and this plant were not used while any effect, threshold or default
+was chosen; the cases are run as a user would, ``diagnose(train, valid)`` with no option.
+
+The score (named right / cases) is printed by ``pytest -s`` and recorded in docs/diagnose.md;
+the cases that miss are listed in ``MISSES`` with what was named instead, as expected failures
+(not strict: a miss that starts passing is reported, not hidden).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.signal import butter, lfilter
+
+from tendonkit.dataset import Dataset, Experiment
+from tendonkit.diagnose import diagnose
+
+pytestmark = pytest.mark.slow
+
+DT, TAU_M, GAIN = 0.01, 0.15, 1.0
+EFFECTS = (
+    "none",
+    "coulomb_friction",
+    "input_delay",
+    "dead_zone",
+    "saturation",
+    "actuator_lag",
+    "static_nonlinearity",
+)
+SEEDS = (701, 702)
+
+
+def draw(effect: str, seed: int) -> dict[str, float]:
+    """The effect's magnitude, drawn in its range from the seed."""
+    rng = np.random.default_rng(seed)
+    ranges = {
+        "coulomb_friction": ("fc", 0.15, 0.35),  # friction torque, in volts of drive
+        "input_delay": ("samples", 10, 20),  # dead time beyond the fine grid of 1-8
+        "dead_zone": ("th", 0.2, 0.4),
+        "saturation": ("limit", 0.9, 1.3),
+        "actuator_lag": ("rate", 4.0, 8.0),  # slew limit, V/s (the input's rate is ~19 V/s rms)
+        "static_nonlinearity": ("c", 0.3, 0.6),  # torque curve u + c u|u|
+    }
+    if effect == "none":
+        return {}
+    key, lo, hi = ranges[effect]
+    value = float(rng.uniform(lo, hi))
+    return {key: round(value) if key == "samples" else value}
+
+
+def servo(effect: str, p: dict[str, float], seed: int, n: int = 6000) -> Dataset:
+    """One record of the servo with ``effect`` hidden (parameters ``p``)."""
+    rng = np.random.default_rng(seed)
+    u = lfilter(*butter(2, 3.0, fs=1.0 / DT), rng.standard_normal(n))
+    u = u / u.std()
+    v = u.copy()
+    if effect == "input_delay":
+        d = int(p["samples"])
+        v = np.concatenate([np.zeros(d), u[:-d]])
+    elif effect == "dead_zone":
+        v = np.sign(u) * np.maximum(np.abs(u) - p["th"], 0.0)
+    elif effect == "saturation":
+        v = np.clip(u, -p["limit"], p["limit"])
+    elif effect == "actuator_lag":
+        # a drive that follows its command through a 40 ms lag at a limited slew rate (a
+        # linear lag alone is linear dynamics, which any baseline represents)
+        a = np.exp(-DT / 0.04)
+        step = p["rate"] * DT
+        for k in range(1, n):
+            v[k] = v[k - 1] + np.clip((1.0 - a) * (u[k] - v[k - 1]), -step, step)
+    elif effect == "static_nonlinearity":
+        v = u + p["c"] * u * np.abs(u)
+    sub = 10
+    h = DT / sub
+    w = 0.0
+    y = np.empty(n)
+    for k in range(n):
+        y[k] = w
+        for _ in range(sub):
+            friction = p["fc"] * np.tanh(w / 1e-3) if effect == "coulomb_friction" else 0.0
+            w += h / TAU_M * (GAIN * v[k] - w - friction)
+    y = y + 0.02 * y.std() * np.random.default_rng(seed + 1).standard_normal(n)
+    exp = Experiment(t=DT * np.arange(n), u=u[:, None], y=y[:, None], name=f"servo{seed}")
+    return Dataset(inputs=("volts",), outputs=("speed",), experiments=(exp,), dt=DT)
+
+
+#: Cases that miss, with what diagnose named (docs/diagnose.md, "A plant never tuned on").
+MISSES: dict[tuple[str, int], str] = {
+    ("static_nonlinearity", 701): "static_nonlinearity +11.8 is best, but a dead zone (+7.2) "
+    "is significant too and a special case of a static curve is named before it",
+    ("static_nonlinearity", 702): "static_nonlinearity +9.9 is best, but a dead zone (+5.8) "
+    "is significant too and a special case of a static curve is named before it",
+}
+
+
+def _cases() -> list:
+    out = []
+    for effect in EFFECTS:
+        for seed in SEEDS:
+            reason = MISSES.get((effect, seed))
+            marks = [pytest.mark.xfail(strict=False, reason=reason)] if reason else []
+            out.append(pytest.param(effect, seed, marks=marks, id=f"{effect}-{seed}"))
+    return out
+
+
+@pytest.mark.parametrize(("effect", "seed"), _cases())
+def test_a_servo_never_tuned_on(effect, seed):
+    p = draw(effect, seed)
+    d = diagnose(servo(effect, p, seed), servo(effect, p, seed + 50))
+    top = ", ".join(f"{f.effect} {f.gain:+.2f} (p_adj {f.p_adjusted:.1e})" for f in d.findings[:3])
+    print(f"\nservo {effect} {p} seed {seed}: causes {d.causes}; {top}")
+    assert d.cause == effect, top
+    if effect != "none":
+        assert d.best is not None and d.best.gain > 0

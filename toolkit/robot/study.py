@@ -192,12 +192,20 @@ def _diagnose(
 
 def _render_diagnosis(d: dict[str, Any]) -> str:
     s = d["summary"]
-    lines = [f"Diagnosis of the best model ({d['method']}): cause = {s['cause']}"]
+    causes = s.get("causes") or [s["cause"]]
+    lines = [f"Diagnosis of the best model ({d['method']}): causes = {', '.join(causes)}"]
     if s["cause"] != "none":
         e = s["extended"]
-        lines.append(f"  extension: {e['effect']} {json.dumps(e['params'], default=str)[:160]}")
+        for st in s.get("sequence") or []:
+            if st["cause"] == "none":
+                continue
+            lines.append(
+                f"  step {st['step']}: {st['cause']} {json.dumps(st['params'], default=str)[:120]}"
+                f" — fit {st['fit_before']:.2f} -> {st['fit']:.2f} % (gain {st['gain']:+.2f})"
+            )
         lines.append(
-            f"  validation fit {s['baseline']['fit']:.2f} % -> {e['fit']:.2f} % (gain {e['gain']:+.2f} points)"
+            f"  validation fit {s['baseline']['fit']:.2f} % -> {e['fit']:.2f} % "
+            f"(total gain {e.get('total_gain', e['gain']):+.2f} points)"
         )
     for f in s["findings"][:4]:
         lines.append(

@@ -225,7 +225,7 @@ def diagnose(
     bar.update()
     trials, skipped = run_effects(registry, settings.effects, ctx, ref, valid, settings, bar)
     findings = adjust(trials, settings)
-    diagnosis = conclude(findings, trials, base, ref, train, settings, skipped)
+    diagnosis = conclude(findings, trials, base, ref, train, settings, skipped, valid)
     steps = continue_sequence(
         diagnosis, trials, registry, train, valid, settings, bar, base.identifier
     )
@@ -631,7 +631,7 @@ def continue_sequence(
         step_trials, step_skipped = run_effects(registry, names, ctx, ref, valid, settings, bar)
         findings = adjust(step_trials, settings)
         base = Baseline(method="previous step", identifier=None, model=start, check=None)
-        step_diag = conclude(findings, step_trials, base, ref, train, settings, step_skipped)
+        step_diag = conclude(findings, step_trials, base, ref, train, settings, step_skipped, valid)
         chosen = step_diag.best
         if chosen is None or chosen.model is None:
             steps.append(_step(step_diag, len(steps) + 1, None, None, valid))
@@ -754,10 +754,36 @@ def conclude(
     train: Dataset,
     settings: Settings,
     skipped: Sequence[dict[str, str]],
+    valid: Dataset | None = None,
 ) -> Diagnosis:
     """Name the cause (or a tie) and assemble the :class:`Diagnosis`."""
     losses = {t.effect: (t.loss, t.prediction_loss) for t in trials}
-    best = _name_cause(findings, losses, settings.alpha, settings.tie_ratio)
+    contests: dict[str, Any] = {}
+    contest = None
+    if settings.refine and valid is not None:
+
+        def contest(general: Finding, special: Finding) -> Finding:
+            direct = special.test.get("direct") or {}
+            if direct.get("p_value", 1.0) < settings.alpha:
+                return special  # seen in the data (a clipped output piled up at its level)
+            gains = {f.effect: _refined_gain(f, train, valid, ref) for f in (general, special)}
+            winner = special if gains[special.effect] >= gains[general.effect] else general
+            contests[winner.effect] = {
+                "between": [general.effect, special.effect],
+                "refined_gains": gains,
+                "named": winner.effect,
+            }
+            return winner
+
+    best = _name_cause(findings, losses, settings.alpha, settings.tie_ratio, contest)
+    if best is not None and best.effect in contests:
+        findings = [
+            dataclasses.replace(f, test={**f.test, "contest": contests[f.effect]})
+            if f.effect == best.effect
+            else f
+            for f in findings
+        ]
+        best = next(f for f in findings if f.effect == best.effect)
     unfit = None
     base_fit = _mean(ref.fit)
     if base.choice and base.choice.get("dead_time_left_to_diagnosis"):
@@ -867,16 +893,32 @@ def check_baseline(baseline: Model, train: Dataset, method: str) -> dict[str, An
     }
 
 
+def _refined_gain(f: Finding, train: Dataset, valid: Dataset, ref: Reference) -> float:
+    """Validation gain of a finding's extension after its simulation-error refinement."""
+    if f.model is None:
+        return -math.inf
+    try:
+        model = refine_by_simulation(f.model, train, max_nfev=REFINE_MAX_NFEV)
+        y = aligned(model, valid).y
+        fits = fit(y, simulate_all(model, valid))
+    except (TendonkitError, np.linalg.LinAlgError, ValueError, FloatingPointError):
+        return f.gain
+    return float(np.mean(fits)) - _mean(ref.fit) if np.all(np.isfinite(fits)) else -math.inf
+
+
 def _name_cause(
     findings: list[Finding],
     losses: dict[str, tuple[FloatArray, FloatArray | None]],
     alpha: float,
     tie_ratio: float,
+    contest: Any = None,
 ) -> Finding | None:
     """The significant finding with the largest gain, unless a simpler one is as good.
 
-    A general cause yields to a significant special case of it (:data:`SPECIAL_CASES`: a
-    saturation or a dead zone is a static nonlinearity whose shape the vocabulary names).
+    A general cause contests a significant special case of it (:data:`SPECIAL_CASES`: a
+    saturation or a dead zone is a static nonlinearity whose shape the vocabulary names): both
+    extensions are refined by simulation error and the larger refined validation gain names
+    the cause (``contest``); without refinement the special case is named.
 
     Parsimony breaks ties: a significant finding with fewer added parameters, a gain of at
     least ``tie_ratio`` of the best one's, and that the best one does not beat significantly
@@ -890,8 +932,12 @@ def _name_cause(
     best = sig[0]
     special = [f for f in sig if f.cause in SPECIAL_CASES.get(best.cause, ())]
     if special:
-        # A static curve contains a clip and a dead band; the specific cause is the finding.
-        best = special[0]
+        # A static curve contains a clip and a dead band.  Which one the data show is decided
+        # by the two extensions refined by simulation error (their equation-error fits put a
+        # clip's level or a band's width from a coarse grid): the larger refined validation
+        # gain names the cause, unless the special case is seen in the data directly (its
+        # direct test).  Without refinement the special case is named.
+        best = contest(best, special[0]) if contest is not None else special[0]
     for f in sig[1:]:
         if f.n_params >= best.n_params or f.gain < tie_ratio * best.gain:
             continue

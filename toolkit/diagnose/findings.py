@@ -342,10 +342,17 @@ def evidence_notes(summary: dict[str, Any]) -> list[str]:
         top = larger[0]
         p_adj = top.get("p_adjusted", top["p_value"])
         if top["significant"] and best["cause"] in SPECIAL_CASES.get(top["cause"], ()):
+            contest = best.get("test", {}).get("contest")
+            why = (
+                f"refined by simulation error, it gains "
+                f"{contest['refined_gains'][best['effect']]:+.2f} points against "
+                f"{contest['refined_gains'][top['effect']]:+.2f}"
+                if contest
+                else "it is seen in the data, or the models were not refined"
+            )
             notes.append(
-                f"{top['cause']} gains more ({top['gain']:+.2f} points, p_adj = {p_adj:.2g}); "
-                f"{best['cause']} is the special case of it that these data support, and is "
-                "named: a general curve also bends where the named one is flat or straight."
+                f"{top['cause']} gains more as fitted ({top['gain']:+.2f} points, p_adj = "
+                f"{p_adj:.2g}); {best['cause']}, a special case of it, is named: {why}."
             )
         elif top["significant"]:
             notes.append(

@@ -355,28 +355,33 @@ class Gravity(_TermEffect):
             supported = 100.0 - ctx.baseline_score <= (1.0 - self.load_share) * (100.0 - without)
         if not supported or len(cands) == 1:
             return ctx.extension(params, model, score, self.description)
-        if without is not None and not self._even_part_supported(ctx, cands):
+        p_angle, m_angle, s_angle, tried = ctx.select(cands[1:])
+        if without is not None and not self._even_part_supported(ctx, tried):
             # With the operating point in the baseline, the constant says nothing, and the
             # odd part of a weight's torque (sin y) is what a stiffness adds too: gravity is
             # told by the even part (cos y), which must remove its share of the misfit that
             # the odd part leaves (Silverbox, a Duffing circuit whose input has a mean, gained
             # +11.25 with sin+cos against the stiffness's +11.21, with no even part at all).
             return ctx.extension(params, model, score, self.description)
-        return ctx.best_extension(cands, self.description)
+        if m_angle is not None and s_angle > score:
+            params, model, score = p_angle, m_angle, s_angle
+        return ctx.extension(params, model, score, self.description)
 
-    def _even_part_supported(self, ctx: Context, cands: list[Any]) -> bool:
-        """Does ``cos y`` remove ``load_share`` of the misfit that ``sin y`` leaves?"""
-        full = [c for c in cands if any("sin(" in t for t in c[0].get("terms", []))]
+    def _even_part_supported(self, ctx: Context, tried: list[dict[str, Any]]) -> bool:
+        """Does ``cos y`` remove ``load_share`` of the misfit that ``sin y`` leaves?
+
+        ``tried`` is :meth:`Context.select`'s record of the angle-dependent candidates.
+        """
+        full = [
+            t
+            for t in tried
+            if t["score"] is not None and any("sin(" in x for x in t["params"].get("terms", []))
+        ]
         if not full:
             return True
-        p_full, build_full = full[0]
-        terms = [t for t in p_full["terms"] if not t.startswith("cos(")]
         odd = [Term((Factor(n, fn="sin", lag=1),)) for n in ctx.train.outputs] + [Term()]
-        _, _, s_odd, _ = ctx.select(
-            [({"terms": terms}, lambda d: extend_with_terms(ctx.baseline, d, odd))]
-        )
-        _, _, s_full, _ = ctx.select([(p_full, build_full)])
-        return bool(100.0 - s_full <= (1.0 - self.load_share) * (100.0 - s_odd))
+        _, _, s_odd, _ = ctx.select([({}, lambda d: extend_with_terms(ctx.baseline, d, odd))])
+        return bool(100.0 - full[0]["score"] <= (1.0 - self.load_share) * (100.0 - s_odd))
 
     def signature(
         self, ctx: Context, baseline: Model, valid: Dataset, res: ResidualAnalysis

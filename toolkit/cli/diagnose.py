@@ -154,6 +154,30 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     return 0
 
 
+def _render_step(st: dict[str, Any]) -> list[str]:
+    """The lines of one step of the sequence of causes."""
+    if st["cause"] == "none":
+        top = st["findings"][0] if st["findings"] else None
+        best = (
+            f"{top['cause']} {top['gain']:+.2f} points"
+            if top and top.get("gain") is not None
+            else "none"
+        )
+        return [
+            f"  {st['step']}. nothing more significant (best of {len(st['findings'])} "
+            f"effects tried: {best})"
+        ]
+    lines = [
+        f"  {st['step']}. {st['cause']} ({st['effect']}): fit {st['fit_before']:.2f} -> "
+        f"{st['fit']:.2f} % (gain {st['gain']:+.2f} points, p_adj={st['p_adjusted']:.3g})"
+    ]
+    if st.get("ambiguous"):
+        lines.append(f"     tie: {st['ambiguous']['statement']}")
+    if st.get("stop"):
+        lines.append(f"     stopped: {st['stop']}")
+    return lines
+
+
 def render_diagnosis(summary: dict[str, Any]) -> str:
     """Plain-text summary of a diagnosis."""
     lines = [
@@ -187,26 +211,7 @@ def render_diagnosis(summary: dict[str, Any]) -> str:
     if len(sequence) > 1 or (sequence and sequence[0].get("stop")):
         lines.append("sequence of causes (each step extends the model of the step before):")
         for st in sequence:
-            if st["cause"] == "none":
-                lines.append(
-                    f"  {st['step']}. nothing more significant (best of "
-                    f"{len(st['findings'])} effects tried: "
-                    + (
-                        f"{st['findings'][0]['cause']} {st['findings'][0]['gain']:+.2f} points"
-                        if st["findings"] and st["findings"][0].get("gain") is not None
-                        else "none"
-                    )
-                    + ")"
-                )
-                continue
-            lines.append(
-                f"  {st['step']}. {st['cause']} ({st['effect']}): fit {st['fit_before']:.2f} -> "
-                f"{st['fit']:.2f} % (gain {st['gain']:+.2f} points, p_adj={st['p_adjusted']:.3g})"
-            )
-            if st.get("ambiguous"):
-                lines.append(f"     tie: {st['ambiguous']['statement']}")
-            if st.get("stop"):
-                lines.append(f"     stopped: {st['stop']}")
+            lines.extend(_render_step(st))
         lines.append(
             f"final model: fit {ext['fit']:.2f} % (total gain {ext['total_gain']:+.2f} points), "
             f"causes: {', '.join(summary['causes'])}"

@@ -58,7 +58,7 @@ from ..metrics import fit
 from ..output_error import refine as refine_by_simulation
 from ..predict import predict
 from ..schema import ARX, Model
-from ..simulate import aligned, transform_inputs
+from ..simulate import aligned
 from .effect import (
     Context,
     DirectTest,
@@ -68,7 +68,7 @@ from .effect import (
     mean_fit,
     simulate_all,
 )
-from .extend import extend_with_terms
+from .extend import extend_with_terms, refit_with_input_blocks
 from .findings import (
     SPECIAL_CASES,
     Diagnosis,
@@ -208,10 +208,8 @@ def diagnose(
         unit="step",
     )
     base = choose_baseline(train, method, settings)
-    if base.choice is not None and "_selected" in base.choice:
-        selected = base.choice.pop("_selected")
-        if base.choice.get("dead_time_left_to_diagnosis"):
-            base.choice["selected_validation_fit"] = mean_fit(selected, valid)
+    if base.selected is not None and base.choice and base.choice["dead_time_left_to_diagnosis"]:
+        base.choice["selected_validation_fit"] = mean_fit(base.selected, valid)
     bar.update()
     bar.set_description("diagnose: baseline on validation data")
     ref = score_baseline(base.model, valid)
@@ -304,6 +302,8 @@ class Baseline:
     check: dict[str, Any] | None
     #: How the baseline chose its structure (``method="auto"``), else None.
     choice: dict[str, Any] | None = None
+    #: The automatic choice's selected model, with the dead times the baseline leaves out.
+    selected: Model | None = None
 
 
 @dataclass(frozen=True)
@@ -367,13 +367,13 @@ def auto_baseline(
     chooser = arx.create(**{**settings, **given})
     with without_training_fit():
         selected = chooser.identify(train)
-    sel = selected.provenance.details.get("selected", {})
-    nk = [int(k) for k in sel.get("nk", [1] * train.nu)]
+    sel = selected.provenance.details["selected"]
+    nk = [int(k) for k in sel["nk"]]
     lean = {
-        "na": sel.get("na", 8),
-        "nb": tuple(sel.get("nb", [8] * train.nu)),
+        "na": sel["na"],
+        "nb": tuple(sel["nb"]),
         "nk": tuple(min(k, 1) for k in nk),
-        "offset": bool(sel.get("offset", False)),
+        "offset": bool(sel["offset"]),
     }
     identifier = arx.create(**{**given, **lean})
     model = identifier.identify(train)
@@ -383,13 +383,12 @@ def auto_baseline(
         "baseline": {k: list(v) if isinstance(v, tuple) else v for k, v in lean.items()},
         "dead_time_left_to_diagnosis": dead,
         "candidates": selected.provenance.details.get("candidates", []),
-        "statement": _choice_statement(sel, lean, dead),
-        "_selected": selected,
+        "statement": _choice_statement(lean, dead),
     }
     return identifier, model, selected, record
 
 
-def _choice_statement(sel: dict[str, Any], lean: dict[str, Any], dead: dict[str, int]) -> str:
+def _choice_statement(lean: dict[str, Any], dead: dict[str, int]) -> str:
     text = (
         f"baseline structure chosen on the training data: ARX na={lean['na']}, "
         f"nb={list(lean['nb'])}, nk={list(lean['nk'])}, offset={lean['offset']} (blocked "
@@ -407,35 +406,30 @@ def _choice_statement(sel: dict[str, Any], lean: dict[str, Any], dead: dict[str,
 
 def choose_baseline(train: Dataset, method: str, settings: Settings) -> Baseline:
     """Identify the baseline on ``train``; fall back to N4SID when it is grossly biased."""
+    selected = choice = None
     if method == AUTO:
         identifier, model, selected, choice = auto_baseline(train, settings.options)
-        # The bias check judges the estimate, not the structure: the selected model, with
-        # its dead times, against N4SID (which absorbs a dead time in its states).
-        check = check_baseline(selected, train, "arx")
-        if check is not None:
-            check["fallback"] = bool(settings.fallback and check["biased"])
-            if check["fallback"]:
-                identifier, model = check.pop("_identifier"), check.pop("_model")
-                method = "n4sid"
-            else:
-                method = "arx"
-            check.pop("_identifier", None)
-            check.pop("_model", None)
-        else:
-            method = "arx"
-        return Baseline(
-            method=method, identifier=identifier, model=model, check=check, choice=choice
-        )
-    identifier = identifiers().get(method).create(**settings.options)
-    model = identifier.identify(train)
-    check = check_baseline(model, train, method)
+        method = "arx"
+    else:
+        identifier = identifiers().get(method).create(**settings.options)
+        model = identifier.identify(train)
+    # The bias check judges the estimate, not the structure: for the automatic baseline the
+    # selected model, with its dead times, against N4SID (which absorbs a dead time).
+    check = check_baseline(selected if selected is not None else model, train, method)
     if check is not None:
         check["fallback"] = bool(settings.fallback and check["biased"])
         if check["fallback"]:
-            method, identifier, model = "n4sid", check.pop("_identifier"), check.pop("_model")
+            method, identifier, model = "n4sid", check["_identifier"], check["_model"]
         check.pop("_identifier", None)
         check.pop("_model", None)
-    return Baseline(method=method, identifier=identifier, model=model, check=check)
+    return Baseline(
+        method=method,
+        identifier=identifier,
+        model=model,
+        check=check,
+        choice=choice,
+        selected=selected,
+    )
 
 
 def score_baseline(baseline: Model, valid: Dataset) -> Reference:
@@ -501,9 +495,10 @@ def try_effect(
     test = loss_test(ref.loss, loss, margin=delta)
     test_info: dict[str, Any] = {**test.to_dict(), "margin": delta}
     routes = [test.p_value]
-    pred = prediction_losses(ext.model, valid) if ref.prediction_loss is not None else None
-    if ref.prediction_loss is not None and pred is not None:
-        ptest = loss_test(ref.prediction_loss, pred, margin=delta)
+    base_pred = ref.prediction_loss
+    pred = prediction_losses(ext.model, valid) if base_pred is not None else None
+    if base_pred is not None and pred is not None:
+        ptest = loss_test(base_pred, pred, margin=delta)
         routes.append(ptest.p_value)
         test_info["prediction"] = {**ptest.to_dict(), "horizon": PREDICTION_HORIZON}
     direct = _direct_test(effect, ctx, ext, valid)
@@ -682,12 +677,15 @@ def structure_builder(model: Model, identifier: Any) -> Any:
     rep = model.representation
     if identifier is None or model.output_blocks or not isinstance(rep, ARX):
         return None
-    blocks = tuple(model.input_blocks)
+
+    def identify(data: Dataset) -> Model:
+        with without_training_fit():
+            return identifier.identify(data)  # type: ignore[no-any-return]
+
+    blocked = refit_with_input_blocks(identify, model.input_blocks)
 
     def build(data: Dataset) -> Model:
-        with without_training_fit():
-            lean = identifier.identify(transform_inputs(aligned(model, data), blocks))
-        lean = lean.replace(input_blocks=blocks)
+        lean = blocked(aligned(model, data))
         have = set(getattr(lean.representation, "terms", ()))
         added = [t for t in rep.terms if t not in have]
         return extend_with_terms(lean, data, added) if added else lean
@@ -899,11 +897,9 @@ def _refined_gain(f: Finding, train: Dataset, valid: Dataset, ref: Reference) ->
         return -math.inf
     try:
         model = refine_by_simulation(f.model, train, max_nfev=REFINE_MAX_NFEV)
-        y = aligned(model, valid).y
-        fits = fit(y, simulate_all(model, valid))
+        return mean_fit(model, valid) - _mean(ref.fit)
     except (TendonkitError, np.linalg.LinAlgError, ValueError, FloatingPointError):
         return f.gain
-    return float(np.mean(fits)) - _mean(ref.fit) if np.all(np.isfinite(fits)) else -math.inf
 
 
 def _name_cause(

@@ -30,6 +30,7 @@ import numpy as np
 
 import tendonkit as tk
 from tendonkit.dataset import Dataset, Experiment
+from tendonkit.parallel import run_tasks
 from tendonkit.simulate import simulate
 
 REAL = Path(os.environ.get("TENDONKIT_SHARED", Path(__file__).resolve().parents[2] / "shared"))
@@ -166,35 +167,85 @@ def split_training(train: Dataset, share: float = 0.25) -> tuple[Dataset, Datase
     return train.with_experiments(fit_parts), train.with_experiments(check_parts)
 
 
-def run_diagnose(rows: list[dict[str, Any]]) -> None:
-    """``diagnose`` at default options on every dataset; its final model scored on the tests."""
+_CASES: list[Any] = []
+
+
+def _cases() -> list[Any]:
+    """The datasets, read once per process (workers read them too: nothing is sent)."""
+    if not _CASES:
+        _CASES.extend(cases())
+    return _CASES
+
+
+def diagnose_task(_shared: Any, index: int) -> list[dict[str, Any]]:
+    """``diagnose`` at default options on one dataset; its final model scored on the tests."""
     from tendonkit.diagnose import diagnose
 
-    for _dataset, train, tests in cases():
-        fit_data, check = split_training(train)
-        t0 = time.perf_counter()
-        d = diagnose(fit_data, check)
-        seconds = time.perf_counter() - t0
-        for name, test, init in tests:
-            linear, nonlinear, unit, factor = PUBLISHED[name]
-            base = rmse(d.baseline, test, init) * factor
-            ext = rmse(d.extended, test, init) * factor
-            rows.append(
-                {
-                    "test": name, "method": "diagnose", "causes": list(d.causes),
-                    "baseline_rmse": base, "rmse": ext, "unit": unit, "init_window": init,
-                    "seconds": seconds, "published_linear": linear,
-                    "published_nonlinear": nonlinear,
-                    "steps": [
-                        {"cause": st.cause, "gain": st.gain, "p_adjusted": st.p_adjusted}
-                        for st in d.steps
-                    ],
-                }
-            )  # fmt: skip
-            print(
-                f"{name:22s} diagnose causes {', '.join(d.causes)}: RMSE baseline {base:.4g} -> "
-                f"extended {ext:.4g} {unit} (published nonlinear {nonlinear}); {seconds:.0f} s"
-            )
+    _dataset, train, tests = _cases()[index]
+    fit_data, check = split_training(train)
+    t0 = time.perf_counter()
+    d = diagnose(fit_data, check)
+    seconds = time.perf_counter() - t0
+    rows = []
+    for name, test, init in tests:
+        linear, nonlinear, unit, factor = PUBLISHED[name]
+        base = rmse(d.baseline, test, init) * factor
+        ext = rmse(d.extended, test, init) * factor
+        rows.append(
+            {
+                "test": name, "method": "diagnose", "causes": list(d.causes),
+                "baseline_rmse": base, "rmse": ext, "unit": unit, "init_window": init,
+                "seconds": seconds, "published_linear": linear,
+                "published_nonlinear": nonlinear,
+                "steps": [
+                    {"cause": st.cause, "gain": st.gain, "p_adjusted": st.p_adjusted}
+                    for st in d.steps
+                ],
+            }
+        )  # fmt: skip
+    return rows
+
+
+def identify_task(_shared: Any, job: tuple[int, str]) -> list[dict[str, Any]]:
+    """One method on one dataset at default options, scored on the dataset's tests."""
+    index, method = job
+    _dataset, train, tests = _cases()[index]
+    t0 = time.perf_counter()
+    try:
+        model = tk.identify(train, method)
+        error = None
+    except tk.errors.TendonkitError as exc:
+        model, error = None, str(exc)
+    seconds = time.perf_counter() - t0
+    rows = []
+    for name, test, init in tests:
+        linear, nonlinear, unit, factor = PUBLISHED[name]
+        value = rmse(model, test, init) * factor if model is not None else None
+        rows.append(
+            {
+                "test": name, "method": method, "rmse": value, "unit": unit,
+                "notes": model.provenance.notes if model is not None else None,
+                "init_window": init, "identify_s": seconds, "error": error,
+                "published_linear": linear, "published_nonlinear": nonlinear,
+            }
+        )  # fmt: skip
+    return rows
+
+
+def _show(row: dict[str, Any]) -> None:
+    linear, nonlinear, unit = row["published_linear"], row["published_nonlinear"], row["unit"]
+    if row["method"] == "diagnose":
+        print(
+            f"{row['test']:22s} diagnose causes {', '.join(row['causes'])}: RMSE baseline "
+            f"{row['baseline_rmse']:.4g} -> extended {row['rmse']:.4g} {unit} (published "
+            f"nonlinear {nonlinear}); {row['seconds']:.0f} s"
+        )
+        return
+    shown = f"{row['rmse']:.4g}" if row["rmse"] is not None else f"failed: {row['error']}"
+    print(
+        f"{row['test']:22s} {row['method']:6s} RMSE {shown} {unit} (published linear {linear}, "
+        f"nonlinear {nonlinear}); identify {row['identify_s']:.1f} s"
+    )
 
 
 def main() -> None:
@@ -207,44 +258,37 @@ def main() -> None:
         help="run diagnose at default options instead (diagnosis inside the training record, "
         "the final extended model scored on the test records)",
     )
+    parser.add_argument(
+        "--jobs",
+        type=int,
+        default=1,
+        help="worker processes, one dataset x method each (tendonkit.parallel; default 1)",
+    )
+    parser.add_argument("--scheduler", help="a dask scheduler address, or 'local'")
     args = parser.parse_args()
-    if args.diagnose:
-        rows_d: list[dict[str, Any]] = []
-        load0 = os.getloadavg()[0]
-        run_diagnose(rows_d)
-        if args.out:
-            machine = {"load_before": load0, "load_after": os.getloadavg()[0]}
-            Path(args.out).write_text(json.dumps({"rows": rows_d, "machine": machine}, indent=1))
-        return
-    methods = args.methods.split(",")
     load = os.getloadavg()[0]
-    rows: list[dict[str, Any]] = []
-    for _dataset, train, tests in cases():
-        for method in methods:
-            t0 = time.perf_counter()
-            try:
-                model = tk.identify(train, method)
-                error = None
-            except tk.errors.TendonkitError as exc:
-                model, error = None, str(exc)
-            seconds = time.perf_counter() - t0
-            for name, test, init in tests:
-                linear, nonlinear, unit, factor = PUBLISHED[name]
-                value = rmse(model, test, init) * factor if model is not None else None
-                row = {
-                    "test": name, "method": method, "rmse": value, "unit": unit,
-                    "notes": model.provenance.notes if model is not None else None,
-                    "init_window": init, "identify_s": seconds, "error": error,
-                    "published_linear": linear, "published_nonlinear": nonlinear,
-                }  # fmt: skip
-                rows.append(row)
-                shown = f"{value:.4g}" if value is not None else f"failed: {error}"
-                print(
-                    f"{name:22s} {method:6s} RMSE {shown} {unit} (published linear {linear}, "
-                    f"nonlinear {nonlinear}); identify {seconds:.1f} s"
-                )
+    n = len(_cases())
+    if args.diagnose:
+        fn, jobs = diagnose_task, list(range(n))
+    else:
+        fn, jobs = identify_task, [(i, m) for i in range(n) for m in args.methods.split(",")]
+    results: list[list[dict[str, Any]]] = [[] for _ in jobs]
+    t0 = time.perf_counter()
+    for o in run_tasks(fn, jobs, jobs=args.jobs, scheduler=args.scheduler):
+        if o.error is not None:
+            raise SystemExit(f"{jobs[o.index]} failed: {o.error}")
+        results[o.index] = o.value
+        for row in o.value:
+            _show(row)
+    rows = [r for part in results for r in part]
     if args.out:
-        machine = {"load_before": load, "load_after": os.getloadavg()[0]}
+        machine = {
+            "load_before": load,
+            "load_after": os.getloadavg()[0],
+            "jobs": args.jobs,
+            "scheduler": args.scheduler,
+            "wall_s": time.perf_counter() - t0,
+        }
         Path(args.out).write_text(json.dumps({"rows": rows, "machine": machine}, indent=1))
 
 

@@ -14,7 +14,14 @@ from typing import Any
 from tendonkit.errors import OptionError, raise_if
 from tendonkit.robot import RobotParameters
 
-__all__ = ["MOUNTS", "PRESETS", "PlantConfig", "config_from_dict", "config_to_dict"]
+__all__ = [
+    "MOUNTS",
+    "PARAMETER_RANGES",
+    "PRESETS",
+    "PlantConfig",
+    "config_from_dict",
+    "config_to_dict",
+]
 
 #: Mounting options (spec §1): gravity off (nominal), robot axis up, down, horizontal with the
 #: tilt plane vertical, horizontal with the pan plane vertical.
@@ -43,6 +50,9 @@ _RANGES: dict[str, tuple[float, float]] = {
     "camera_fc": (0.5, 5.0),
 }
 _MU_S_FACTOR = (1.1, 1.5)
+#: Valid range of each numeric effect parameter (plant spec §10), for users of the plant
+#: (campaigns draw from them): ``name -> (low, high)``.
+PARAMETER_RANGES: dict[str, tuple[float, float]] = dict(_RANGES)
 
 
 @dataclass(frozen=True)

@@ -34,7 +34,13 @@ from typing import Any
 
 from tendonkit import __version__
 from tendonkit.errors import FMUError, OptionError, raise_if
-from tendonkit.fmu._config import PRESETS, PlantConfig, config_from_dict, config_to_dict
+from tendonkit.fmu._config import (
+    PARAMETER_RANGES,
+    PRESETS,
+    PlantConfig,
+    config_from_dict,
+    config_to_dict,
+)
 from tendonkit.fmu._model_description import UNIT_BASES, finalize_model_description
 from tendonkit.robot import PAPER_RATIOS, RobotParameters
 from tendonkit.schema import Model
@@ -43,6 +49,7 @@ from tendonkit.stepper import feedthrough
 __all__ = [
     "BACKENDS",
     "EFFECT_SWITCHES",
+    "PARAMETER_RANGES",
     "UNIT_BASES",
     "ExportResult",
     "build_model_fmu",

@@ -30,6 +30,7 @@ import scipy.signal
 from tendonkit.errors import DataError, OptionError
 from tendonkit.fmu._config import (
     MOUNTS,
+    PARAMETER_RANGES,
     PRESETS,
     PlantConfig,
     config_from_dict,
@@ -57,6 +58,7 @@ from tendonkit.robot.kinematics import scalar_forward_kinematics
 __all__ = [
     "MOUNTS",
     "OUTPUT_SIZES",
+    "PARAMETER_RANGES",
     "PRESETS",
     "Plant",
     "PlantConfig",

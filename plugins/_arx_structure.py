@@ -24,6 +24,7 @@ import numpy as np
 from tendonkit.dataset import Dataset, Experiment
 from tendonkit.errors import OptionError, TendonkitError
 from tendonkit.identification import without_training_fit
+from tendonkit.parallel import map_tasks
 from tendonkit.predict import predict
 from tendonkit.simulate import simulate
 
@@ -57,16 +58,14 @@ def select(
         pairs = [(n, (n,) * nu) for n in range(1, options.max_order + 1)]
     window = max(10, options.max_order + max(nk) + 1)
     folds = _folds(data, window)
+    candidates = [(offset, na, nb) for offset in offsets for na, nb in pairs]
+    # the candidates are independent: options.jobs workers score them (tendonkit.parallel)
+    errors = map_tasks(
+        _score, candidates, shared=(options, nk, folds, window), jobs=getattr(options, "jobs", 1)
+    )
     rows = []
-    for offset in offsets:
-        for na, nb in pairs:
-            trial = dataclasses.replace(
-                options, na=na, nb=nb, nk=nk, offset=offset, criterion="equation"
-            )
-            try:
-                err = _held_out(trial, folds, window)
-            except TendonkitError:
-                continue
+    for (offset, na, nb), err in zip(candidates, errors, strict=True):
+        if err is not None:
             n_par = na * data.ny + sum(nb) + int(offset)
             rows.append(
                 {
@@ -86,6 +85,19 @@ def select(
         r["selected"] = r is best
     record["candidates"] = rows
     return int(best["na"]), tuple(best["nb"]), nk, bool(best["offset"]), record
+
+
+def _score(shared: tuple[Any, ...], candidate: tuple[bool, int, tuple[int, ...]]) -> float | None:
+    """Held-out simulation error of one ``(offset, na, nb)`` (None: it cannot be fitted)."""
+    options, nk, folds, window = shared
+    offset, na, nb = candidate
+    trial = dataclasses.replace(
+        options, na=na, nb=nb, nk=nk, offset=offset, criterion="equation", jobs=1
+    )
+    try:
+        return _held_out(trial, folds, window)
+    except TendonkitError:
+        return None
 
 
 def as_tuple(v: Any, n: int) -> tuple[int, ...]:

@@ -88,6 +88,10 @@ class ARX:
     bilinear : bool
         Also regress on the products ``u_m[k-nk_m] · y_j[k-1]`` of every input with every
         output (``u_m[k-1]`` when ``nk_m = 0``): input-dependent gain and stiffness.
+    jobs : int
+        Worker processes scoring the automatic choice's candidates (:mod:`tendonkit.parallel`);
+        1 (default) scores them here, which is faster below about a hundred thousand samples
+        (benchmarks/README.md, "Sweeps").  The choice does not depend on it.
     criterion : str
         ``"equation"`` (default): least squares on the one-step prediction error.
         ``"simulation"``: start there and refine every coefficient by the free-run simulation
@@ -117,9 +121,12 @@ class ARX:
     ridge: float = 0.0
     bilinear: bool = False
     criterion: str = "equation"
+    jobs: int = 1
 
     def __post_init__(self) -> None:
         p = []
+        if not is_int(self.jobs) or self.jobs < 1:
+            p.append(f"jobs must be an integer >= 1, found {self.jobs!r}.")
         if self.na != "auto" and (not is_int(self.na) or self.na < 0):
             p.append(f"na must be an integer >= 0 or 'auto', found {self.na!r}.")
         for key in ("nb", "nk"):

@@ -63,6 +63,7 @@ from tendonkit.errors import DataError, OptionError, PluginError
 from tendonkit.hookspecs import hookimpl
 from tendonkit.identification import build_model, is_int, require_samples, signals
 from tendonkit.metrics import fit
+from tendonkit.parallel import map_tasks
 from tendonkit.regression import r_factor
 from tendonkit.schema import Model, SparseMap
 from tendonkit.terms import CompiledTerms, Factor, Term
@@ -108,6 +109,10 @@ class SINDYc:
         Share of every experiment, at its end, held out to score the threshold sweep, in (0, 1).
     normalize : bool
         Regress on mean/std-normalised signals and fold the normalisation into the terms.
+    jobs : int
+        Worker processes fitting the sweep's thresholds (:mod:`tendonkit.parallel`); 1
+        (default) fits them here: each fit takes milliseconds, less than starting a worker
+        (benchmarks/README.md, "Sweeps").  The result does not depend on it.
 
     Examples
     --------
@@ -128,9 +133,12 @@ class SINDYc:
     max_iter: int = 20
     validation_fraction: float = 0.2
     normalize: bool = True
+    jobs: int = 1
 
     def __post_init__(self) -> None:
         p = []
+        if not is_int(self.jobs) or self.jobs < 1:
+            p.append(f"jobs must be an integer >= 1, found {self.jobs!r}.")
         if self.threshold is not None and not (_is_number(self.threshold) and self.threshold >= 0):
             p.append(f"threshold must be a number >= 0 or None (sweep), found {self.threshold!r}.")
         if not is_int(self.degree) or not 1 <= self.degree <= MAX_DEGREE:
@@ -298,13 +306,9 @@ class SINDYc:
 
         def run(lams: Sequence[float]) -> None:
             lams = [lam for lam in lams if lam not in scores]
-            coefs = []
-            for lam in lams:
-                opt = self._optimizer(lam, initial_guess=guess.T.copy())
-                with warnings.catch_warnings():
-                    warnings.simplefilter("ignore")
-                    opt.fit(r, qy)
-                coefs.append(norm.fold(np.asarray(opt.coef_, dtype=float)))
+            # independent fits: self.jobs workers run them (tendonkit.parallel)
+            fitted = map_tasks(_stlsq, lams, shared=(self, r, qy, guess), jobs=self.jobs)
+            coefs = [norm.fold(c) for c in fitted]
             for lam, s in zip(lams, free_run_scores(terms, np.array(coefs), valid, norm)):
                 scores[lam] = float(s)
 
@@ -329,6 +333,16 @@ class SINDYc:
 
 
 # -- library --------------------------------------------------------------------------------------
+
+
+def _stlsq(shared: tuple[Any, ...], lam: float) -> FloatArray:
+    """STLSQ coefficients of one threshold on the compressed system ``(R, QᵀY)``."""
+    ident, r, qy, guess = shared
+    opt = ident._optimizer(lam, initial_guess=guess.T.copy())
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        opt.fit(r, qy)
+    return np.asarray(opt.coef_, dtype=float)
 
 
 def library_terms(

@@ -512,3 +512,17 @@ def test_a_direct_test_without_a_p_value_is_a_plugin_error():
             )
     finally:
         unregister(name)
+
+
+def test_effects_tried_on_workers_give_the_same_diagnosis():
+    """jobs=2 (the task engine) names the same causes with the same numbers as jobs=1."""
+    train = _arx_data(32, 3000, cubic=0.3, delay=3)
+    valid = _arx_data(62, 2000, cubic=0.3, delay=3)
+    kw = {"method": "arx", "options": {"na": 2, "nb": 1}, "fallback": False}
+    serial = diagnose(train, valid, **kw)
+    pooled = diagnose(train, valid, jobs=2, **kw)
+    assert pooled.causes == serial.causes == ("input_delay", "nonlinear_stiffness")
+    a, b = serial.to_dict(), pooled.to_dict()
+    assert a == b
+    with pytest.raises(OptionError, match="jobs must be an integer >= 1"):
+        diagnose(train, valid, jobs=0)

@@ -99,3 +99,24 @@ def test_what_a_newcomer_reads_is_honest(demo):
     assert sources and not any("_none" in s for s in sources), sources
     captions = re.findall(r"<img src='[^']*' alt='([^']*)'>", report)
     assert len(captions) == len(set(captions)), "two figures share one caption"
+
+
+def test_the_demo_campaign_reports_pass_rate_and_worst_plant(demo):
+    out, stdout = demo
+    camp = json.loads((out / "summary.json").read_text())["campaign"]
+    assert camp["runs"] == 24 and 0 <= camp["passed"] <= 24
+    rows = (out / "campaign" / "runs.csv").read_text().splitlines()
+    assert len(rows) == 25 and rows[0].startswith("run,draw,repeat,controller")
+    passed = sum(line.split(",")[rows[0].split(",").index("passed")] == "True" for line in rows[1:])
+    assert passed == camp["passed"]
+    worst = camp["worst"]
+    assert set(worst["parameters"]) == {"friction_mu_k", "forcelag_tau", "delay_s"}
+    assert worst["rms_error_true_mrad"] == pytest.approx(camp["distribution"]["max"])
+    m = re.search(r"the linear MPC passed (\d+) of 24", stdout)
+    assert m and int(m.group(1)) == camp["passed"]
+    assert f"run {worst['run']}," in stdout
+    html = (out / "index.html").read_text()
+    assert (
+        "Campaign: the linear MPC across plant draws" in html and "metric_vs_parameters.png" in html
+    )
+    assert (out / "campaign" / "index.html").is_file()

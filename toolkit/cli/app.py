@@ -3,7 +3,7 @@
 Every user error (arguments, files, data, options) becomes one message that lists every problem
 found, on standard error, with exit status 2 — never a traceback.  The subcommands live in one
 module per group: ``models`` (identify, simulate, compare), ``diagnose``, ``robot`` (plant build,
-collect, demo), ``export`` and ``mpc``; their shared helpers in ``common``.  Heavy libraries
+collect, demo), ``export``, ``mpc`` and ``campaign``; their shared helpers in ``common``.  Heavy libraries
 (fmpy, pythonfmu, cvxpy, pysindy, matplotlib) are imported inside the commands that need them, so
 ``tendonkit --help`` is instant.
 """
@@ -17,7 +17,7 @@ from collections.abc import Sequence
 from .. import __version__
 from ..errors import TendonkitError
 from ..manager import FAILURES, effects, identifiers, plugin_manager
-from . import diagnose, export, models, mpc, robot
+from . import campaign, diagnose, export, models, mpc, robot
 from .common import EXIT_USAGE, Parser, check_output_path, raise_problems, write_json
 
 
@@ -76,6 +76,7 @@ def build_parser() -> argparse.ArgumentParser:
     robot.add_commands(sub)
     export.add_commands(sub)
     mpc.add_commands(sub)
+    campaign.add_commands(sub)
     return parser
 
 

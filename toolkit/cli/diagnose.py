@@ -67,6 +67,13 @@ def add_commands(sub: Any) -> None:
         help="keep the named extensions as fitted by least squares (by default each is refined "
         "by its simulation error before it is reported and extended further)",
     )
+    p.add_argument(
+        "--jobs",
+        type=int,
+        default=1,
+        help="worker processes trying the effects (default 1; worth it on long records only, "
+        "docs/campaigns.md)",
+    )
     p.add_argument("--seed", type=seed_argument, default=0, help="seed for every random choice")
     p.add_argument(
         "--no-fallback",
@@ -136,6 +143,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
             fallback=not args.no_fallback,
             max_causes=args.max_causes,
             refine=not args.no_refine,
+            jobs=args.jobs,
         )
         model_path = args.model or (
             str(Path(args.report) / "extended_model.json") if args.report else None

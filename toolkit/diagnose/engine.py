@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import pickle
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -56,6 +57,7 @@ from ..manager import effects as effect_registry
 from ..manager import identifiers
 from ..metrics import fit
 from ..output_error import refine as refine_by_simulation
+from ..parallel import run_tasks
 from ..predict import predict
 from ..schema import ARX, Model
 from ..simulate import aligned
@@ -118,6 +120,7 @@ def diagnose(
     fallback: bool = True,
     max_causes: int = 3,
     refine: bool = True,
+    jobs: int = 1,
 ) -> Diagnosis:
     """Diagnose what the baseline model gets wrong on ``valid`` (see the module docstring).
 
@@ -165,6 +168,11 @@ def diagnose(
         Refine every named extension by its simulation error on the training data before it
         is handed on and reported (:func:`refine_named`); the candidates are compared by
         their equation-error fits either way.
+    jobs : int
+        Worker processes trying the first step's effects (:mod:`tendonkit.parallel`); 1
+        (default) tries them here, which is faster unless the data are long (starting a
+        worker costs about 2 s; benchmarks/README.md, "Sweeps").  The diagnosis does not
+        depend on it.
 
     Returns
     -------
@@ -191,6 +199,7 @@ def diagnose(
         fallback=fallback,
         max_causes=max_causes,
         refine=refine,
+        jobs=jobs,
     )
     problems = settings.problems(registry.names())
     if (train.inputs, train.outputs) != (valid.inputs, valid.outputs):
@@ -224,6 +233,7 @@ def diagnose(
     trials, skipped = run_effects(registry, settings.effects, ctx, ref, valid, settings, bar)
     findings = adjust(trials, settings)
     diagnosis = conclude(findings, trials, base, ref, train, settings, skipped, valid)
+    trials = _with_builder(trials, diagnosis, registry, ctx, ref, valid, settings)
     steps = continue_sequence(
         diagnosis, trials, registry, train, valid, settings, bar, base.identifier
     )
@@ -248,10 +258,13 @@ class Settings:
     fallback: bool
     max_causes: int = 3
     refine: bool = True
+    jobs: int = 1
 
     def problems(self, registered: Sequence[str]) -> list[str]:
         """Every reason these settings cannot run."""
         p = []
+        if not (isinstance(self.jobs, int) and not isinstance(self.jobs, bool) and self.jobs >= 1):
+            p.append(f"jobs must be an integer >= 1, found {self.jobs!r}.")
         if not 0 < self.alpha < 0.5:
             p.append(f"alpha must be in (0, 0.5), found {self.alpha}.")
         if not 0 <= self.min_relative_gain < 1:
@@ -540,18 +553,81 @@ def run_effects(
     settings: Settings,
     bar: Any,
 ) -> tuple[list[Trial], list[dict[str, str]]]:
-    """Every effect in ``names`` tried against ``ctx.baseline`` (and why the others were not)."""
+    """Every effect in ``names`` tried against ``ctx.baseline`` (and why the others were not).
+
+    With ``settings.jobs > 1`` the effects are tried on worker processes
+    (:mod:`tendonkit.parallel`): each worker gets the context once and sends its trial back
+    without its structure builder (a closure), which :func:`_with_builder` rebuilds here for
+    the one effect that is named.  A context that cannot be sent (a later step's structure is
+    a closure) is tried here.
+    """
     trials: list[Trial] = []
     skipped: list[dict[str, str]] = []
-    for name in names:
-        bar.set_description(f"diagnose: {name}")
-        outcome = try_effect(registry.get(name), name, ctx, ref, valid, settings)
+    for name, outcome in zip(names, _outcomes(registry, names, ctx, ref, valid, settings, bar)):
         if isinstance(outcome, Trial):
             trials.append(outcome)
         else:
             skipped.append({"effect": name, "reason": outcome})
-        bar.update()
     return trials, skipped
+
+
+def _outcomes(
+    registry: Any,
+    names: Sequence[str],
+    ctx: Context,
+    ref: Reference,
+    valid: Dataset,
+    settings: Settings,
+    bar: Any,
+) -> list[Trial | str]:
+    shared = (ctx, ref, valid, dataclasses.replace(settings, jobs=1))
+    if settings.jobs > 1 and len(names) > 1:
+        try:
+            pickle.dumps(shared)
+        except (pickle.PicklingError, AttributeError, TypeError):
+            pass
+        else:
+            out: list[Trial | str] = [""] * len(names)
+            bar.set_description(f"diagnose: {len(names)} effects on {settings.jobs} workers")
+            for o in run_tasks(_effect_task, list(names), shared=shared, jobs=settings.jobs):
+                out[o.index] = o.value if o.error is None else o.error
+                bar.update()
+            return out
+    out = []
+    for name in names:
+        bar.set_description(f"diagnose: {name}")
+        out.append(try_effect(registry.get(name), name, ctx, ref, valid, settings))
+        bar.update()
+    return out
+
+
+def _effect_task(shared: tuple[Any, ...], name: str) -> Trial | str:
+    """One effect tried in a worker: the trial without its builder (a closure)."""
+    ctx, ref, valid, settings = shared
+    outcome = try_effect(effect_registry().get(name), name, ctx, ref, valid, settings)
+    return dataclasses.replace(outcome, build=None) if isinstance(outcome, Trial) else outcome
+
+
+def _with_builder(
+    trials: list[Trial],
+    diagnosis: Diagnosis,
+    registry: Any,
+    ctx: Context,
+    ref: Reference,
+    valid: Dataset,
+    settings: Settings,
+) -> list[Trial]:
+    """The named effect's trial with its structure builder (tried again here if a worker ran it)."""
+    best = diagnosis.best
+    if best is None or settings.jobs == 1:
+        return trials
+    out = list(trials)
+    for k, t in enumerate(out):
+        if t.effect == best.effect and t.build is None:
+            again = try_effect(registry.get(t.effect), t.effect, ctx, ref, valid, settings)
+            if isinstance(again, Trial):
+                out[k] = dataclasses.replace(t, build=again.build)
+    return out
 
 
 class _Structure:

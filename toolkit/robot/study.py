@@ -34,6 +34,7 @@ from ..manager import identifiers
 from ..report import Report
 from ..stepper import Stepper
 from . import protocol
+from .campaign import run_campaign, spec_from_dict
 from .collect import collect
 from .cosim import make_controller, make_reference, open_loop, plot_tracking, run
 from .figures import fig2
@@ -272,7 +273,7 @@ def run_demo(
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    stages = _Stages(7, progress)
+    stages = _Stages(8, progress)
     t0 = time.perf_counter()
     data = stages.run(
         "build the paper-like plant FMU and collect data (paper protocol)",
@@ -312,6 +313,11 @@ def run_demo(
         lambda: _mpc(models, data, out, quick),
     )
     print(_render_mpc(mpc))
+    camp = stages.run(
+        f"campaign: the linear MPC on {CAMPAIGN_DRAWS} plant draws (friction, force lag, delay)",
+        lambda: _campaign(data, out, quick, seed, progress),
+    )
+    print(_render_campaign(camp))
     summary = {
         "seed": seed,
         "quick": quick,
@@ -322,6 +328,7 @@ def run_demo(
         "diagnosis": diag["summary"],
         "export": {k: (str(v) if isinstance(v, Path) else v) for k, v in exp.items()},
         "mpc": mpc,
+        "campaign": camp,
         "stage_seconds": stages.times,
     }
     stages.run("write the report", lambda: _write_report(out, summary, figs2, diag, data))
@@ -355,6 +362,65 @@ def _mpc(models: dict[str, Any], data: dict[str, Any], out: Path, quick: bool) -
     summaries = {k: r.summary() for k, r in results.items()}
     figures = [str(p) for p in plot_tracking(results, out / "figures")]
     return {"reference": ref.name, "results": summaries, "figures": figures}
+
+
+#: Plant draws of the demo's campaign.
+CAMPAIGN_DRAWS = 24
+
+
+def _campaign(
+    data: dict[str, Any], out: Path, quick: bool, seed: int, progress: bool
+) -> dict[str, Any]:
+    """The linear MPC across plant draws around the paper-like plant (docs/campaigns.md)."""
+    spec = spec_from_dict(
+        {
+            "campaign": {"name": "demo", "seed": seed, "draws": CAMPAIGN_DRAWS},
+            "plant": {
+                "preset": "paper_like",
+                "effects": ["N"],
+                "vary": {"friction_mu_k": "spec", "forcelag_tau": "spec", "delay_s": "spec"},
+            },
+            "controllers": [{"name": "linear MPC (N4SID)", "model": "n4sid.json"}],
+            "references": [{"kind": "petal", "duration": 10.0 if quick else 30.0}],
+            "criteria": {
+                "require": ["rms_error_true_mrad <= 35", "fallbacks == 0", "bound_violations == 0"]
+            },
+        },
+        base_dir=out,
+        source="demo campaign",
+    )
+    res = run_campaign(
+        spec, out / "campaign", plant_fmu=data["plant"], progress=progress, fresh=True
+    )
+    s = res.summary
+    return {
+        "runs": s["runs"],
+        "passed": s["passed"],
+        "pass_rate": s["pass_rate"],
+        "criteria": s["criteria"],
+        "worst": s["worst"][0],
+        "distribution": s["controllers"]["linear MPC (N4SID)"]["metrics"]["rms_error_true_mrad"],
+        "engine": s["timing"]["engine"],
+        "workers": s["timing"]["workers"],
+        "figures": s.get("figures", []),
+        "report": str(out / "campaign" / "index.html"),
+    }
+
+
+def _render_campaign(c: dict[str, Any]) -> str:
+    w = c["worst"]
+    params = ", ".join(f"{k} = {v:.3g}" for k, v in w["parameters"].items())
+    d = c["distribution"]
+    return "\n".join(
+        [
+            f"Campaign ({c['runs']} plant draws, {c['engine']} with {c['workers']} worker(s)): "
+            f"the linear MPC passed {c['passed']} of {c['runs']} ({100 * c['pass_rate']:.0f} %; "
+            f"{', '.join(c['criteria'])})",
+            f"  true RMS error median {d['median']:.1f} mrad, p95 {d['p95']:.1f}, max {d['max']:.1f}",
+            f"  worst plant: run {w['run']}, {params}: {w['rms_error_true_mrad']:.1f} mrad"
+            + (f" ({w['failed']})" if w["failed"] else ""),
+        ]
+    )
 
 
 def _render_mpc(mpc: dict[str, Any]) -> str:
@@ -471,6 +537,13 @@ def _write_report(
     )
     for f in m["figures"]:
         rep.figure(f, "Joint tracking and end-effector path, reference vs achieved.")
+    rep.heading("Campaign: the linear MPC across plant draws")
+    c = summary["campaign"]
+    rep.pre(_render_campaign(c))
+    for f in c["figures"]:
+        if "metric_vs" in f or "worst" in f:
+            rep.figure(f, "Campaign: " + Path(f).stem.replace("_", " "))
+    rep.text("Full campaign report: campaign/index.html; the table: campaign/runs.csv", note=True)
     rep.heading("Timing")
     rep.table(["stage", "seconds"], [[k, v] for k, v in summary["stage_seconds"].items()])
     return rep.write()

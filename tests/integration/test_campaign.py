@@ -1,0 +1,291 @@
+"""Co-simulation campaigns (issue 19): the same table on every engine, workers that die, resume.
+
+A campaign here is small (3-second petals, a few draws) so that what is tested is the engine and
+the bookkeeping; the 200-run campaign of 60-second petals is benchmarks/bench_campaign.py.
+"""
+
+from __future__ import annotations
+
+import json
+import textwrap
+
+import pytest
+
+from tendonkit.cli import main
+from tendonkit.errors import OptionError
+from tendonkit.mpc.examples import two_mode_model
+from tendonkit.robot.campaign import DETERMINISTIC, load_spec, rerun, run_campaign, spec_from_dict
+
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("campaign")]
+
+# A controller of the user's: the kinematic open loop, but it kills its own worker process the
+# first time it meets the plant draw named in the marker folder (a crash in native code).
+USER_CONTROLLER = """
+import os
+from pathlib import Path
+
+import numpy as np
+
+from tendonkit.robot.cosim import PRETENSION
+from tendonkit.robot.kinematics import commanded_tensions
+
+
+class Kinematic:
+    horizon = 1
+
+    def __init__(self, marker="", die_on_q1=None):
+        self.marker = Path(marker) if marker else None
+        self.die_on_q1 = die_on_q1
+
+    def reset(self, u0=None, y0=None):
+        self.first = True
+
+    def step(self, y, r_future):
+        if self.first and self.marker is not None and self.die_on_q1 is not None:
+            self.first = False
+            if abs(float(y[0]) - self.die_on_q1) < 1e-12 and not any(self.marker.glob("died*")):
+                (self.marker / "died").touch()
+                os._exit(9)
+        return commanded_tensions(np.asarray(r_future[:1]), PRETENSION)[0]
+"""
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory):
+    d = tmp_path_factory.mktemp("campaign")
+    two_mode_model().save(d / "linear.json")
+    (d / "usercontrol.py").write_text(USER_CONTROLLER)
+    return d
+
+
+def spec_dict(**over):
+    spec = {
+        "campaign": {"name": "small", "seed": 3, "draws": 3},
+        "plant": {
+            "effects": ["N"],
+            "vary": {
+                "friction_mu_k": "spec",
+                "delay_s": {"values": [0.0, 0.06]},
+            },
+        },
+        "controllers": [
+            {"name": "linear MPC", "model": "linear.json", "horizon": 10},
+            {"name": "open loop", "kind": "open_loop"},
+        ],
+        "references": [{"kind": "petal", "duration": 3.0}],
+        "criteria": {"require": ["rms_error_true_mrad <= 60", "fallbacks == 0"]},
+    }
+    for k, v in over.items():
+        spec[k] = {**spec.get(k, {}), **v} if isinstance(v, dict) else v
+    return spec
+
+
+def test_local_cluster_and_process_pool_give_the_serial_table(folder, tmp_path):
+    spec = spec_from_dict(spec_dict(), base_dir=folder)
+    serial = run_campaign(spec, tmp_path / "serial", jobs=1, report=False)
+    pool = run_campaign(spec, tmp_path / "pool", jobs=2, report=False)
+    dask = run_campaign(spec, tmp_path / "dask", jobs=2, scheduler="local", report=False)
+    assert len(serial.rows) == 6
+    assert serial.table(deterministic=True) == pool.table(deterministic=True)
+    assert serial.table(deterministic=True) == dask.table(deterministic=True)
+    assert dask.summary["timing"]["engine"] == "dask" and dask.summary["timing"]["workers"] == 2
+    assert len({r["worker"] for r in dask.rows}) == 2  # both workers ran
+    # the draws are real: parameters inside the spec's range, delays from the list, and the
+    # controllers differ on the same plant
+    assert all(
+        0.05 <= r["friction_mu_k"] <= 0.3 and r["delay_s"] in (0.0, 0.06) for r in serial.rows
+    )
+    lin = [r["rms_error_true_mrad"] for r in serial.rows if r["controller"] == "linear MPC"]
+    ol = [r["rms_error_true_mrad"] for r in serial.rows if r["controller"] == "open loop"]
+    assert lin != ol and all(x > 0 for x in lin + ol)
+    assert (tmp_path / "serial" / "runs.csv").read_text().count("\n") == 7
+
+
+def test_a_killed_worker_loses_only_its_run_on_both_engines(folder, tmp_path):
+    # run 2 (draw 1, the user's controller) kills its worker on its first attempt
+    base = spec_dict(controllers=[])
+    serial_spec = spec_from_dict(
+        {
+            **base,
+            "controllers": [
+                {"name": "user", "kind": "python", "class": "usercontrol:Kinematic", "path": "."}
+            ],
+        },
+        base_dir=folder,
+    )
+    reference = run_campaign(serial_spec, tmp_path / "ref", jobs=1, report=False)
+    q1_at_start = rerun(reference, 1).y[0, 0]  # the measured q1 the controller sees first in run 1
+    for engine, kwargs in (("pool", {"jobs": 2}), ("dask", {"jobs": 2, "scheduler": "local"})):
+        marker = tmp_path / f"marker-{engine}"
+        marker.mkdir()
+        spec = spec_from_dict(
+            {
+                **base,
+                "controllers": [
+                    {
+                        "name": "user",
+                        "kind": "python",
+                        "class": "usercontrol:Kinematic",
+                        "path": ".",
+                        "options": {"marker": str(marker), "die_on_q1": float(q1_at_start)},
+                    }
+                ],
+            },
+            base_dir=folder,
+        )
+        res = run_campaign(spec, tmp_path / engine, report=False, **kwargs)
+        assert (marker / "died").exists(), engine  # a worker really died
+        assert [r["attempts"] for r in res.rows] == [1, 2, 1], engine
+        assert res.summary["retried"] == [{"run": 1, "attempts": 2}]
+        assert all(r["status"] == "ok" for r in res.rows)
+        assert res.table(deterministic=True) == reference.table(deterministic=True), engine
+
+
+def test_an_interrupted_campaign_resumes_from_the_rows_written(folder, tmp_path):
+    spec = spec_from_dict(spec_dict(), base_dir=folder)
+    full = run_campaign(spec, tmp_path / "full", jobs=1, report=False)
+    out = tmp_path / "cut"
+    run_campaign(spec, out, jobs=1, report=False)
+    lines = (out / "runs.jsonl").read_text().splitlines()
+    # the interruption: 2 rows kept, the third cut half-way through its line
+    (out / "runs.jsonl").write_text("\n".join(lines[:2]) + "\n" + lines[2][:17])
+    resumed = run_campaign(spec, out, jobs=1, report=False)
+    assert resumed.resumed == 2 and resumed.summary["timing"]["runs_now"] == 4
+    assert resumed.table(deterministic=True) == full.table(deterministic=True)
+    # another campaign in the same folder is refused, nothing is lost; --fresh sets rows aside
+    other = spec_from_dict(spec_dict(campaign={"seed": 4}), base_dir=folder)
+    with pytest.raises(OptionError, match="holds the rows of another campaign"):
+        run_campaign(other, out, jobs=1, report=False)
+    assert len((out / "runs.jsonl").read_text().splitlines()) == 6
+    run_campaign(other, out, jobs=1, report=False, fresh=True)
+    assert len(list(out.glob("runs-*.jsonl.old"))) == 1
+
+
+def test_the_cli_writes_table_summary_and_report_and_exits_by_the_pass_rate(
+    folder, tmp_path, capsys
+):
+    spec = folder / "cli.toml"
+    spec.write_text(
+        textwrap.dedent(
+            """
+            [campaign]
+            name = "cli"
+            seed = 1
+            draws = 2
+
+            [plant]
+            effects = ["N"]
+            [plant.vary]
+            forcelag_tau = { range = [0.05, 0.5] }
+            forcelag_on = { values = [true] }
+
+            [[controllers]]
+            name = "linear MPC"
+            model = "linear.json"
+            horizon = 10
+
+            [[references]]
+            kind = "petal"
+            duration = 3
+
+            [criteria]
+            require = ["rms_error_true_mrad <= 0.001"]
+            min_pass_rate = 0.5
+            """
+        )
+    )
+    out = tmp_path / "out"
+    code = main(
+        [
+            "campaign",
+            str(spec),
+            "--out",
+            str(out),
+            "--jobs",
+            "1",
+            "--json",
+            str(tmp_path / "s.json"),
+        ]
+    )
+    text = capsys.readouterr().out
+    assert code == 1  # nothing tracks to a micro-radian: the pass rate 0 % is below 50 %
+    assert "campaign cli: 0 of 2 runs passed" in text and "worst: run" in text
+    for name in (
+        "runs.csv",
+        "summary.json",
+        "index.html",
+        "figures/metric_vs_parameters.png",
+        "figures/distributions.png",
+        "figures/worst_0_tracking.png",
+    ):
+        assert (out / name).is_file(), name
+    summary = json.loads((tmp_path / "s.json").read_text())
+    assert summary["worst"][0]["parameters"]["forcelag_tau"] > 0.05
+    assert "rms_error_true_mrad <= 0.001" in summary["worst"][0]["failed"]
+    html = (out / "index.html").read_text()
+    assert "Worst cases" in html and "metric_vs_parameters.png" in html
+
+
+def test_a_bad_spec_lists_every_problem(folder, tmp_path, capsys):
+    bad = folder / "bad.toml"
+    bad.write_text(
+        textwrap.dedent(
+            """
+            [campaign]
+            draws = 0
+            colour = "red"
+            [plant.vary]
+            friction_mu_k = { range = [0.01, 0.9] }
+            wobble = "spec"
+            [[controllers]]
+            model = "missing.json"
+            [[references]]
+            kind = "spiral"
+            [criteria]
+            require = ["rms_error_true_mrad <= 25", "happiness >= 1", "fallbacks is 0"]
+            """
+        )
+    )
+    code = main(["campaign", str(bad), "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err
+    assert code == 2 and "Traceback" not in err
+    for needle in (
+        "draws must be a whole number",
+        "unknown key(s) colour",
+        "leaves the plant's valid range [0.05, 0.3]",
+        "wobble: not a plant parameter",
+        "missing.json",
+        "kind must be one of petal, circle, step",
+        "unknown metric 'happiness'",
+        "'fallbacks is 0' is not 'METRIC OP NUMBER'",
+    ):
+        assert needle in err, needle
+    assert not (tmp_path / "o").exists()
+    with pytest.raises(OptionError, match="not valid TOML"):
+        (folder / "broken.toml").write_text("[campaign\n")
+        load_spec(folder / "broken.toml")
+
+
+def test_draws_depend_on_the_seed_and_their_number_only(folder):
+    small = spec_from_dict(spec_dict(), base_dir=folder)
+    large = spec_from_dict(spec_dict(campaign={"draws": 50}), base_dir=folder)
+    assert [small.draw(d) for d in range(3)] == [large.draw(d) for d in range(3)]
+    assert small.noise_seed(1, 0) == large.noise_seed(1, 0) != large.noise_seed(2, 0)
+    other = spec_from_dict(spec_dict(campaign={"seed": 4}), base_dir=folder)
+    assert other.draw(0) != small.draw(0)
+    g = spec_dict(
+        plant={
+            "vary": {
+                "delay_s": {"range": [0.0, 0.1], "points": 3},
+                "mount": {"values": ["none", "horiz_tilt"]},
+            }
+        }
+    )
+    g["campaign"] = {"name": "grid", "sampling": "grid"}
+    grid = spec_from_dict(g, base_dir=folder)
+    assert grid.n_draws == 6 and grid.n_runs == 12
+    assert {(grid.draw(d)["delay_s"], grid.draw(d)["mount"]) for d in range(6)} == {
+        (x, m) for x in (0.0, 0.05, 0.1) for m in ("none", "horiz_tilt")
+    }
+    assert set(DETERMINISTIC) >= {"run", "rms_error_true_mrad", "fallbacks", "status"}
+    assert "wall_s" not in DETERMINISTIC

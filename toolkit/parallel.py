@@ -1,0 +1,497 @@
+"""Independent tasks on one interface: in this process, a local process pool, or a Dask cluster.
+
+:func:`run_tasks` calls ``fn(shared, payload)`` for every payload and yields an
+:class:`Outcome` per task as tasks finish.  Where they run is the caller's choice:
+
+``jobs=1`` (no scheduler)
+    In this process, in order.  Nothing to start; the right choice where a task takes
+    milliseconds (the start of a worker process costs about 2 s, benchmarks/README.md).
+``jobs=N``
+    A pool of N worker processes started here (``spawn``, one BLAS thread each).  Each worker
+    holds one task at a time, so when a worker dies (a crash in native code, the OOM killer, a
+    ``kill -9``) the master knows the one task it lost: that task is started again on a fresh
+    worker, up to ``retries`` more times, and its :attr:`Outcome.attempts` says so.  Other tasks
+    are not touched.
+``scheduler="local"`` or ``scheduler="tcp://host:8786"``
+    dask.distributed (``pip install tendonkit[cluster]``): a :class:`distributed.LocalCluster`
+    of ``jobs`` single-threaded process workers, or the cluster at that address.  ``shared`` is
+    scattered to every worker once.  When a worker dies the scheduler moves its task to another
+    worker (``distributed.scheduler.allowed-failures``, set to ``retries`` for a local cluster);
+    the attempts are read from the scheduler's count of workers that died holding the task.
+
+An exception raised by ``fn`` is not retried (it would raise again): it becomes the outcome's
+``error`` (``"Type: message"``) and the other tasks go on.  Results do not depend on the engine
+or the number of workers as long as ``fn`` does not: every random choice belongs in the
+payload (a seed per task), never in the worker.
+
+Examples
+--------
+>>> outs = sorted(run_tasks(pow_task, [2, 3], shared=10), key=lambda o: o.index)
+>>> [o.value for o in outs], outs[0].attempts
+([100, 1000], 1)
+"""
+
+from __future__ import annotations
+
+import hashlib
+import multiprocessing
+import os
+import pickle
+import socket
+import time
+import traceback
+from collections import deque
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from multiprocessing.connection import Connection, wait
+from typing import Any
+
+from .errors import OptionError, SimulationError, raise_if
+
+__all__ = [
+    "Outcome",
+    "default_jobs",
+    "engine_name",
+    "map_tasks",
+    "pow_task",
+    "run_tasks",
+    "worker_id",
+]
+
+#: Retries of a task whose worker died, after the first attempt.
+RETRIES = 2
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """What one task gave.
+
+    Attributes
+    ----------
+    index : int
+        Position of the task's payload.
+    value : object
+        ``fn``'s return value (None when it raised or its workers kept dying).
+    error : str or None
+        ``"Type: message"`` of the exception ``fn`` raised, or why the task was given up.
+    attempts : int
+        Starts of the task: 1 unless a worker died holding it.
+    worker : str
+        ``host:pid`` of the process that ran it.
+    seconds : float
+        Wall time of the call in its worker.
+    """
+
+    index: int
+    value: Any = None
+    error: str | None = None
+    attempts: int = 1
+    worker: str = ""
+    seconds: float = 0.0
+
+
+def pow_task(shared: int, payload: int) -> int:
+    """``payload ** (shared // 10 + 1)``: a picklable task for examples and tests."""
+    return int(payload) ** (int(shared) // 10 + 1)
+
+
+def worker_id() -> str:
+    """``host:pid`` of this process."""
+    return f"{socket.gethostname()}:{os.getpid()}"
+
+
+def engine_name(jobs: int | None, scheduler: str | None) -> str:
+    """What :func:`run_tasks` will use: ``serial``, ``processes`` or ``dask``."""
+    if scheduler:
+        return "dask"
+    return "processes" if (jobs or default_jobs()) > 1 else "serial"
+
+
+def default_jobs() -> int:
+    """The cores this process may use."""
+    try:
+        return max(len(os.sched_getaffinity(0)), 1)
+    except AttributeError:  # macOS, Windows
+        return max(os.cpu_count() or 1, 1)
+
+
+_ONE_THREAD = False
+
+
+def _one_thread() -> None:
+    """One BLAS/OpenMP thread in this worker (N workers on N cores must not oversubscribe)."""
+    global _ONE_THREAD
+    if not _ONE_THREAD:
+        # lazy: heavy (threadpoolctl scans the loaded libraries)
+        from threadpoolctl import threadpool_limits
+
+        threadpool_limits(limits=1)
+        _ONE_THREAD = True
+
+
+def _call(
+    fn: Callable[[Any, Any], Any], shared: Any, payload: Any
+) -> tuple[Any, str | None, float]:
+    t0 = time.perf_counter()
+    try:
+        value, error = fn(shared, payload), None
+    except Exception as exc:  # the task's failure is its outcome, never the campaign's
+        value, error = None, f"{type(exc).__name__}: {exc}".strip()
+        if os.environ.get("TENDONKIT_TASK_TRACEBACK"):
+            error += "\n" + traceback.format_exc()
+    return value, error, time.perf_counter() - t0
+
+
+def _check(jobs: int | None, scheduler: str | None, retries: int) -> int:
+    problems = []
+    if jobs is not None and (not isinstance(jobs, int) or jobs < 1):
+        problems.append(f"jobs must be a whole number >= 1, found {jobs!r}")
+    if not isinstance(retries, int) or retries < 0:
+        problems.append(f"retries must be a whole number >= 0, found {retries!r}")
+    if scheduler is not None and not (isinstance(scheduler, str) and scheduler.strip()):
+        problems.append(f"scheduler must be 'local' or an address, found {scheduler!r}")
+    raise_if(problems, OptionError, "Cannot run the tasks:")
+    return jobs if jobs is not None else default_jobs()
+
+
+def run_tasks(
+    fn: Callable[[Any, Any], Any],
+    payloads: Sequence[Any],
+    *,
+    shared: Any = None,
+    jobs: int | None = 1,
+    scheduler: str | None = None,
+    retries: int = RETRIES,
+    progress: bool = False,
+    desc: str = "tasks",
+) -> Iterator[Outcome]:
+    """Run ``fn(shared, payload)`` for every payload; yield outcomes as tasks finish.
+
+    Parameters
+    ----------
+    fn : callable
+        A module-level function (workers import it by name).
+    payloads : sequence
+        One task each; must be picklable for the parallel engines.
+    shared : object, optional
+        Passed to every call; sent to each worker once.
+    jobs : int or None
+        Workers (None: this machine's cores); 1 without a scheduler runs here, in order.
+    scheduler : str, optional
+        ``"local"`` (a dask LocalCluster of ``jobs`` workers) or a dask scheduler address.
+    retries : int
+        How many times a task is started again after the worker holding it died.
+    progress : bool
+        A progress bar with the rate and the time left, on standard error.
+    desc : str
+        The progress bar's label.
+
+    Yields
+    ------
+    Outcome
+        In order of completion (in order of the payloads for the serial engine).
+
+    Raises
+    ------
+    OptionError
+        Bad ``jobs``, ``retries`` or ``scheduler``; dask not installed for a scheduler.
+    SimulationError
+        The dask scheduler cannot be reached.
+    """
+    n_jobs = _check(jobs, scheduler, retries)
+    # lazy: heavy (tqdm)
+    from tqdm import tqdm
+
+    if scheduler:
+        it = _dask(fn, payloads, shared, n_jobs, scheduler, retries, desc)
+    elif n_jobs > 1 and len(payloads) > 1:
+        it = _processes(fn, payloads, shared, min(n_jobs, len(payloads)), retries)
+    else:
+        it = _serial(fn, payloads, shared)
+    bar = tqdm(total=len(payloads), desc=desc, unit="task", disable=not progress, leave=False)
+    retried = failed = 0
+    try:
+        for out in it:
+            retried += out.attempts > 1
+            failed += out.error is not None
+            if retried or failed:
+                bar.set_postfix(retried=retried, failed=failed, refresh=False)
+            bar.update(1)
+            yield out
+    finally:
+        bar.close()
+        close = getattr(it, "close", None)
+        if close is not None:
+            close()
+
+
+def map_tasks(
+    fn: Callable[[Any, Any], Any],
+    payloads: Sequence[Any],
+    *,
+    shared: Any = None,
+    jobs: int | None = 1,
+    scheduler: str | None = None,
+) -> list[Any]:
+    """The values of :func:`run_tasks` in the order of the payloads; the first error raises.
+
+    For sweeps inside tendonkit (SINDYc thresholds, ARX structures): a failed task is a bug
+    there, not an outcome to tabulate.
+
+    Raises
+    ------
+    SimulationError
+        A task raised or its workers kept dying (the message names the task).
+    """
+    values: list[Any] = [None] * len(payloads)
+    for out in run_tasks(fn, payloads, shared=shared, jobs=jobs, scheduler=scheduler):
+        if out.error is not None:
+            raise SimulationError(f"Task {out.index} of {len(payloads)} failed: {out.error}")
+        values[out.index] = out.value
+    return values
+
+
+# -- serial ------------------------------------------------------------------------------------
+
+
+def _serial(
+    fn: Callable[[Any, Any], Any], payloads: Sequence[Any], shared: Any
+) -> Iterator[Outcome]:
+    me = worker_id()
+    for i, payload in enumerate(payloads):
+        value, error, seconds = _call(fn, shared, payload)
+        yield Outcome(i, value, error, 1, me, seconds)
+
+
+# -- a local process pool that knows which task a dead worker held -----------------------------
+
+
+def _worker_main(conn: Connection, fn: Callable[[Any, Any], Any], shared_blob: bytes) -> None:
+    """A pool worker: one task at a time from ``conn`` until None or the pipe closes."""
+    _one_thread()
+    shared = pickle.loads(shared_blob)
+    me = worker_id()
+    while True:
+        try:
+            msg = conn.recv()
+        except (EOFError, OSError):
+            return
+        if msg is None:
+            return
+        index, payload = msg
+        value, error, seconds = _call(fn, shared, payload)
+        try:
+            conn.send((index, value, error, me, seconds))
+        except (pickle.PicklingError, TypeError, AttributeError) as exc:
+            conn.send((index, None, f"the result cannot be sent back: {exc}", me, seconds))
+        except (BrokenPipeError, OSError):
+            return
+
+
+@dataclass
+class _Slot:
+    process: Any
+    conn: Connection
+    task: int | None = None
+
+
+def _processes(
+    fn: Callable[[Any, Any], Any],
+    payloads: Sequence[Any],
+    shared: Any,
+    n_workers: int,
+    retries: int,
+) -> Iterator[Outcome]:
+    ctx = multiprocessing.get_context("spawn")
+    blob = pickle.dumps(shared)
+    queue: deque[int] = deque(range(len(payloads)))
+    attempts = [0] * len(payloads)
+    remaining = len(payloads)
+
+    def start() -> _Slot:
+        parent, child = ctx.Pipe()
+        proc = ctx.Process(target=_worker_main, args=(child, fn, blob), daemon=True)
+        proc.start()
+        child.close()
+        return _Slot(proc, parent)
+
+    def give(slot: _Slot) -> None:
+        if queue:
+            i = queue.popleft()
+            attempts[i] += 1
+            slot.task = i
+            slot.conn.send((i, payloads[i]))
+
+    slots = [start() for _ in range(n_workers)]
+    try:
+        for s in slots:
+            give(s)
+        while remaining:
+            ready = set(wait([s.conn for s in slots] + [s.process.sentinel for s in slots]))
+            for k, s in enumerate(slots):
+                if s.conn in ready or s.process.sentinel in ready:
+                    got = None
+                    try:
+                        if s.conn.poll():
+                            got = s.conn.recv()
+                    except (EOFError, OSError):
+                        got = None
+                    if got is not None:
+                        index, value, error, who, seconds = got
+                        s.task = None
+                        remaining -= 1
+                        yield Outcome(index, value, error, attempts[index], who, seconds)
+                        give(s)
+                        continue
+                    if s.process.is_alive():
+                        continue
+                    # the worker died: replace it, start its task again or give it up
+                    s.process.join()
+                    code = s.process.exitcode
+                    lost = s.task
+                    s.conn.close()
+                    slots[k] = fresh = start()
+                    if lost is not None:
+                        if attempts[lost] <= retries:
+                            queue.appendleft(lost)
+                        else:
+                            remaining -= 1
+                            yield Outcome(
+                                lost,
+                                None,
+                                f"WorkerDied: the worker running it died {attempts[lost]} times "
+                                f"(last exit code {code})",
+                                attempts[lost],
+                                "",
+                                0.0,
+                            )
+                    give(fresh)
+    finally:
+        for s in slots:
+            try:
+                s.conn.send(None)
+            except (BrokenPipeError, OSError):
+                pass
+        for s in slots:
+            s.process.join(timeout=2.0)
+            if s.process.is_alive():
+                s.process.kill()
+                s.process.join()
+            s.conn.close()
+
+
+# -- dask.distributed ------------------------------------------------------------------------
+
+
+def _dask_call(fn: Callable[[Any, Any], Any], shared: Any, payload: Any) -> tuple[Any, ...]:
+    _one_thread()
+    value, error, seconds = _call(fn, shared, payload)
+    return value, error, worker_id(), seconds
+
+
+def _suspicious(dask_scheduler: Any, keys: list[Any]) -> dict[Any, int]:
+    """Runs on the scheduler: how many workers died while holding each task."""
+    tasks = dask_scheduler.tasks
+    return {k: int(getattr(tasks[k], "suspicious", 0)) if k in tasks else 0 for k in keys}
+
+
+def _dask(
+    fn: Callable[[Any, Any], Any],
+    payloads: Sequence[Any],
+    shared: Any,
+    n_workers: int,
+    scheduler: str,
+    retries: int,
+    desc: str,
+) -> Iterator[Outcome]:
+    try:
+        # lazy: heavy, and an optional extra (tendonkit[cluster])
+        import dask
+        from distributed import Client, LocalCluster, WorkerPlugin, as_completed
+    except ImportError:
+        raise OptionError(
+            "A dask scheduler needs dask.distributed: pip install 'tendonkit[cluster]'."
+        ) from None
+    cluster = None
+    # one task per worker thread at a time (no queue on the workers), so a worker that dies
+    # holds one task only
+    config = {
+        "distributed.scheduler.allowed-failures": retries,
+        "distributed.scheduler.worker-saturation": 1.0,
+    }
+    with dask.config.set(config):
+        try:
+            if scheduler == "local":
+                cluster = LocalCluster(
+                    n_workers=n_workers,
+                    threads_per_worker=1,
+                    processes=True,
+                    dashboard_address=None,
+                    silence_logs=50,  # logging.CRITICAL: a killed worker is reported by us
+                )
+                client = Client(cluster)
+            else:
+                client = Client(scheduler, timeout="20s")
+        except (OSError, TimeoutError) as exc:
+            if cluster is not None:
+                cluster.close()
+            raise SimulationError(f"Cannot reach the dask scheduler {scheduler!r}: {exc}") from None
+    if cluster is not None:
+
+        class QuickExit(WorkerPlugin):  # type: ignore[misc]
+            """The local cluster's workers end without finalising their interpreter.
+
+            The plant FMU (a pythonfmu slave hosted by the worker's own interpreter) corrupts
+            the heap while a dask worker process finalises ("free(): corrupted unsorted
+            chunks" after the campaign is done; results are not affected).  A closing worker
+            has nothing left to save, so it leaves with ``os._exit``.
+            """
+
+            def teardown(self, worker: Any) -> None:
+                os._exit(0)
+
+        client.register_plugin(QuickExit(), name="tendonkit-quick-exit")
+    token = hashlib.sha1(f"{desc}{time.time_ns()}{os.getpid()}".encode()).hexdigest()[:10]
+    try:
+        [shared_f] = client.scatter([shared], broadcast=True, hash=False)
+        todo = deque(range(len(payloads)))
+        index: dict[Any, int] = {}
+        pending = as_completed()
+
+        def submit() -> None:
+            # as many tasks in flight as the cluster has threads: the scheduler hands a worker
+            # one task at a time, so a worker that dies holds one task only
+            slots = max(sum(client.nthreads().values()), 1)
+            while todo and pending.count() < slots:
+                i = todo.popleft()
+                fut = client.submit(
+                    _dask_call, fn, shared_f, payloads[i], key=f"{desc}-{token}-{i}", pure=False
+                )
+                index[fut.key] = i
+                pending.add(fut)
+
+        submit()
+        while not pending.is_empty():
+            batch = pending.next_batch(block=True)
+            died: dict[Any, int] = client.run_on_scheduler(_suspicious, keys=[f.key for f in batch])
+            for fut in batch:
+                i = index.pop(fut.key)
+                if fut.status == "finished":
+                    value, error, who, seconds = fut.result()
+                    yield Outcome(i, value, error, 1 + died.get(fut.key, 0), who, seconds)
+                else:
+                    why = fut.exception() if fut.status == "error" else fut.status
+                    yield Outcome(
+                        i,
+                        None,
+                        f"WorkerDied: {type(why).__name__}: {why}",
+                        1 + max(died.get(fut.key, 0), retries),
+                        "",
+                        0.0,
+                    )
+                fut.release()
+            submit()
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()

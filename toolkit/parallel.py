@@ -33,10 +33,13 @@ Examples
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import multiprocessing
 import os
 import pickle
+import re
+import signal
 import socket
 import time
 import traceback
@@ -50,11 +53,13 @@ from .errors import OptionError, SimulationError, raise_if
 
 __all__ = [
     "Outcome",
+    "dask_problems",
     "default_jobs",
     "engine_name",
     "map_tasks",
     "pow_task",
     "run_tasks",
+    "scheduler_problems",
     "worker_id",
 ]
 
@@ -150,8 +155,33 @@ def _check(jobs: int | None, scheduler: str | None, retries: int) -> int:
         problems.append(f"retries must be a whole number >= 0, found {retries!r}")
     if scheduler is not None and not (isinstance(scheduler, str) and scheduler.strip()):
         problems.append(f"scheduler must be 'local' or an address, found {scheduler!r}")
+    elif scheduler is not None and scheduler != "local":
+        problems += scheduler_problems(scheduler)
     raise_if(problems, OptionError, "Cannot run the tasks:")
     return jobs if jobs is not None else default_jobs()
+
+
+def scheduler_problems(scheduler: str) -> list[str]:
+    """Why ``scheduler`` is neither ``local`` nor a dask scheduler address (empty when fine)."""
+    if scheduler == "local":
+        return []
+    with_scheme = r"(tcp|tls|inproc|ucx|ws|wss)://[^\s/:]+(:\d{1,5})?/?"
+    host_port = r"[^\s/:]+:\d{1,5}"
+    if not (re.fullmatch(with_scheme, scheduler) or re.fullmatch(host_port, scheduler)):
+        return [
+            f"scheduler {scheduler!r} is neither 'local' nor an address such as tcp://host:8786"
+        ]
+    return []
+
+
+def dask_problems() -> list[str]:
+    """Why dask.distributed cannot be used here (empty when it can)."""
+    try:
+        # lazy: heavy, and an optional extra (tendonkit[cluster])
+        import distributed  # noqa: F401
+    except ImportError:
+        return ["a dask scheduler needs dask.distributed: pip install 'tendonkit[cluster]'"]
+    return []
 
 
 def run_tasks(
@@ -164,6 +194,7 @@ def run_tasks(
     retries: int = RETRIES,
     progress: bool = False,
     desc: str = "tasks",
+    timeout: float | None = None,
 ) -> Iterator[Outcome]:
     """Run ``fn(shared, payload)`` for every payload; yield outcomes as tasks finish.
 
@@ -185,6 +216,11 @@ def run_tasks(
         A progress bar with the rate and the time left, on standard error.
     desc : str
         The progress bar's label.
+    timeout : float, optional
+        Seconds a task may run on the local process pool: a task still running then has its
+        worker stopped and ends with a ``Timeout`` error (not retried).  This process cannot
+        stop a task of its own, and dask does not stop a running task, so the serial and
+        dask engines do not apply it.
 
     Yields
     ------
@@ -205,7 +241,7 @@ def run_tasks(
     if scheduler:
         it = _dask(fn, payloads, shared, n_jobs, scheduler, retries, desc)
     elif n_jobs > 1 and len(payloads) > 1:
-        it = _processes(fn, payloads, shared, min(n_jobs, len(payloads)), retries)
+        it = _processes(fn, payloads, shared, min(n_jobs, len(payloads)), retries, timeout)
     else:
         it = _serial(fn, payloads, shared)
     bar = tqdm(total=len(payloads), desc=desc, unit="task", disable=not progress, leave=False)
@@ -268,6 +304,7 @@ def _serial(
 
 def _worker_main(conn: Connection, fn: Callable[[Any, Any], Any], shared_blob: bytes) -> None:
     """A pool worker: one task at a time from ``conn`` until None or the pipe closes."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the master's to handle
     _one_thread()
     shared = pickle.loads(shared_blob)
     me = worker_id()
@@ -284,7 +321,7 @@ def _worker_main(conn: Connection, fn: Callable[[Any, Any], Any], shared_blob: b
             conn.send((index, value, error, me, seconds))
         except (pickle.PicklingError, TypeError, AttributeError) as exc:
             conn.send((index, None, f"the result cannot be sent back: {exc}", me, seconds))
-        except (BrokenPipeError, OSError):
+        except OSError:
             return
 
 
@@ -293,6 +330,7 @@ class _Slot:
     process: Any
     conn: Connection
     task: int | None = None
+    since: float = 0.0
 
 
 def _processes(
@@ -301,11 +339,13 @@ def _processes(
     shared: Any,
     n_workers: int,
     retries: int,
+    timeout: float | None,
 ) -> Iterator[Outcome]:
     ctx = multiprocessing.get_context("spawn")
     blob = pickle.dumps(shared)
     queue: deque[int] = deque(range(len(payloads)))
     attempts = [0] * len(payloads)
+    timed_out: set[int] = set()
     remaining = len(payloads)
 
     def start() -> _Slot:
@@ -316,61 +356,92 @@ def _processes(
         return _Slot(proc, parent)
 
     def give(slot: _Slot) -> None:
-        if queue:
-            i = queue.popleft()
-            attempts[i] += 1
-            slot.task = i
+        if not queue:
+            return
+        i = queue.popleft()
+        attempts[i] += 1
+        slot.task, slot.since = i, time.monotonic()
+        try:
             slot.conn.send((i, payloads[i]))
+        except OSError:  # the worker died before it could take it: the task waits for another
+            attempts[i] -= 1
+            queue.appendleft(i)
+            slot.task = None
 
     slots = [start() for _ in range(n_workers)]
     try:
         for s in slots:
             give(s)
         while remaining:
-            ready = set(wait([s.conn for s in slots] + [s.process.sentinel for s in slots]))
+            wait_s = None
+            if timeout is not None:
+                busy = [s.since for s in slots if s.task is not None]
+                wait_s = max(0.0, min(busy) + timeout - time.monotonic()) if busy else timeout
+            ready = set(wait([s.conn for s in slots] + [s.process.sentinel for s in slots], wait_s))
             for k, s in enumerate(slots):
-                if s.conn in ready or s.process.sentinel in ready:
+                late = (
+                    timeout is not None
+                    and s.task is not None
+                    and time.monotonic() - s.since > timeout
+                )
+                if not (s.conn in ready or s.process.sentinel in ready or late):
+                    continue
+                got = None
+                try:
+                    if s.conn.poll():
+                        got = s.conn.recv()
+                except (EOFError, OSError):
                     got = None
-                    try:
-                        if s.conn.poll():
-                            got = s.conn.recv()
-                    except (EOFError, OSError):
-                        got = None
-                    if got is not None:
-                        index, value, error, who, seconds = got
-                        s.task = None
+                if got is not None:
+                    index, value, error, who, seconds = got
+                    s.task = None
+                    remaining -= 1
+                    yield Outcome(index, value, error, attempts[index], who, seconds)
+                    give(s)
+                    continue
+                if late and s.process.is_alive():
+                    assert s.task is not None
+                    timed_out.add(s.task)
+                    s.process.kill()
+                if s.process.is_alive():
+                    continue
+                # the worker died (or was stopped): replace it, start its task again or give up
+                s.process.join()
+                code = s.process.exitcode
+                lost = s.task
+                s.conn.close()
+                slots[k] = fresh = start()
+                if lost is not None:
+                    if lost in timed_out:
                         remaining -= 1
-                        yield Outcome(index, value, error, attempts[index], who, seconds)
-                        give(s)
-                        continue
-                    if s.process.is_alive():
-                        continue
-                    # the worker died: replace it, start its task again or give it up
-                    s.process.join()
-                    code = s.process.exitcode
-                    lost = s.task
-                    s.conn.close()
-                    slots[k] = fresh = start()
-                    if lost is not None:
-                        if attempts[lost] <= retries:
-                            queue.appendleft(lost)
-                        else:
-                            remaining -= 1
-                            yield Outcome(
-                                lost,
-                                None,
-                                f"WorkerDied: the worker running it died {attempts[lost]} times "
-                                f"(last exit code {code})",
-                                attempts[lost],
-                                "",
-                                0.0,
-                            )
-                    give(fresh)
+                        yield Outcome(
+                            lost,
+                            None,
+                            f"Timeout: the task ran longer than {timeout:g} s; its worker "
+                            "was stopped",
+                            attempts[lost],
+                            "",
+                            float(timeout or 0.0),
+                        )
+                    elif attempts[lost] <= retries:
+                        queue.appendleft(lost)
+                    else:
+                        remaining -= 1
+                        yield Outcome(
+                            lost,
+                            None,
+                            f"WorkerDied: the worker running it died {attempts[lost]} times "
+                            f"(last exit code {code})",
+                            attempts[lost],
+                            "",
+                            0.0,
+                        )
+                give(fresh)
     finally:
         for s in slots:
             try:
                 s.conn.send(None)
-            except (BrokenPipeError, OSError):
+            except OSError:
                 pass
         for s in slots:
             s.process.join(timeout=2.0)
@@ -382,9 +453,16 @@ def _processes(
 
 # -- dask.distributed ------------------------------------------------------------------------
 
+#: Name of the worker plugin that holds the tasks' shared data on every dask worker.
+_SHARED_PLUGIN = "tendonkit-shared"
 
-def _dask_call(fn: Callable[[Any, Any], Any], shared: Any, payload: Any) -> tuple[Any, ...]:
+
+def _dask_call(fn: Callable[[Any, Any], Any], plugin: str, payload: Any) -> tuple[Any, ...]:
+    # lazy: heavy, and an optional extra (tendonkit[cluster])
+    from distributed import get_worker
+
     _one_thread()
+    shared = get_worker().plugins[plugin].shared  # type: ignore[attr-defined]
     value, error, seconds = _call(fn, shared, payload)
     return value, error, worker_id(), seconds
 
@@ -393,6 +471,43 @@ def _suspicious(dask_scheduler: Any, keys: list[Any]) -> dict[Any, int]:
     """Runs on the scheduler: how many workers died while holding each task."""
     tasks = dask_scheduler.tasks
     return {k: int(getattr(tasks[k], "suspicious", 0)) if k in tasks else 0 for k in keys}
+
+
+def _connect(scheduler: str, n_workers: int, retries: int) -> tuple[Any, Any]:
+    """(client, cluster or None) for ``scheduler``; SimulationError when it cannot be reached."""
+    try:
+        # lazy: heavy, and an optional extra (tendonkit[cluster])
+        import dask
+        from distributed import Client, LocalCluster
+    except ImportError:
+        raise OptionError(
+            "A dask scheduler needs dask.distributed: pip install 'tendonkit[cluster]'."
+        ) from None
+    # one task per worker thread at a time (no queue on the workers), so a worker that dies
+    # holds one task only
+    config = {
+        "distributed.scheduler.allowed-failures": retries,
+        "distributed.scheduler.worker-saturation": 1.0,
+    }
+    cluster = None
+    with dask.config.set(config):
+        try:
+            if scheduler == "local":
+                cluster = LocalCluster(
+                    n_workers=n_workers,
+                    threads_per_worker=1,
+                    processes=True,
+                    dashboard_address=None,
+                    silence_logs=50,  # logging.CRITICAL: a killed worker is reported by us
+                )
+                return Client(cluster), cluster
+            return Client(scheduler, timeout="20s"), None
+        except Exception as exc:  # a bad address, a refused connection, a timeout
+            if cluster is not None:
+                cluster.close()
+            raise SimulationError(
+                f"Cannot reach the dask scheduler {scheduler!r}: {type(exc).__name__}: {exc}"
+            ) from None
 
 
 def _dask(
@@ -404,68 +519,49 @@ def _dask(
     retries: int,
     desc: str,
 ) -> Iterator[Outcome]:
-    try:
-        # lazy: heavy, and an optional extra (tendonkit[cluster])
-        import dask
-        from distributed import Client, LocalCluster, WorkerPlugin, as_completed
-    except ImportError:
-        raise OptionError(
-            "A dask scheduler needs dask.distributed: pip install 'tendonkit[cluster]'."
-        ) from None
-    cluster = None
-    # one task per worker thread at a time (no queue on the workers), so a worker that dies
-    # holds one task only
-    config = {
-        "distributed.scheduler.allowed-failures": retries,
-        "distributed.scheduler.worker-saturation": 1.0,
-    }
-    with dask.config.set(config):
-        try:
-            if scheduler == "local":
-                cluster = LocalCluster(
-                    n_workers=n_workers,
-                    threads_per_worker=1,
-                    processes=True,
-                    dashboard_address=None,
-                    silence_logs=50,  # logging.CRITICAL: a killed worker is reported by us
-                )
-                client = Client(cluster)
-            else:
-                client = Client(scheduler, timeout="20s")
-        except (OSError, TimeoutError) as exc:
-            if cluster is not None:
-                cluster.close()
-            raise SimulationError(f"Cannot reach the dask scheduler {scheduler!r}: {exc}") from None
-    if cluster is not None:
+    # lazy: heavy, and an optional extra (tendonkit[cluster])
+    from distributed import WorkerPlugin, as_completed
 
-        class QuickExit(WorkerPlugin):  # type: ignore[misc]
-            """The local cluster's workers end without finalising their interpreter.
+    client, cluster = _connect(scheduler, n_workers, retries)
 
-            The plant FMU (a pythonfmu slave hosted by the worker's own interpreter) corrupts
-            the heap while a dask worker process finalises ("free(): corrupted unsorted
-            chunks" after the campaign is done; results are not affected).  A closing worker
-            has nothing left to save, so it leaves with ``os._exit``.
-            """
+    class Shared(WorkerPlugin):  # type: ignore[misc]
+        """The tasks' shared data, installed on every worker, also on those that join later
+        (a worker restarted after a crash), unlike scattered data, which dies with its worker."""
 
-            def teardown(self, worker: Any) -> None:
+        def __init__(self, data: Any, quick_exit: bool) -> None:
+            self.shared = data
+            self.quick_exit = quick_exit
+
+        def teardown(self, worker: Any) -> None:
+            # The plant FMU (a pythonfmu slave hosted by the worker's own interpreter) corrupts
+            # the heap while a dask worker process finalises ("free(): corrupted unsorted
+            # chunks" after the work is done; results are not affected).  Our own local
+            # cluster's closing workers have nothing left to save and leave at once.
+            if self.quick_exit:
                 os._exit(0)
 
-        client.register_plugin(QuickExit(), name="tendonkit-quick-exit")
     token = hashlib.sha1(f"{desc}{time.time_ns()}{os.getpid()}".encode()).hexdigest()[:10]
+    plugin = f"{_SHARED_PLUGIN}-{token}"
     try:
-        [shared_f] = client.scatter([shared], broadcast=True, hash=False)
+        try:
+            client.register_plugin(Shared(shared, cluster is not None), name=plugin)
+        except Exception as exc:
+            raise SimulationError(
+                f"Cannot send the tasks' data to the dask workers: {type(exc).__name__}: {exc}"
+            ) from None
         todo = deque(range(len(payloads)))
         index: dict[Any, int] = {}
         pending = as_completed()
 
         def submit() -> None:
-            # as many tasks in flight as the cluster has threads: the scheduler hands a worker
-            # one task at a time, so a worker that dies holds one task only
+            # as many tasks in flight as the cluster has threads: with single-threaded workers
+            # (a LocalCluster here; `dask worker --nthreads 1` elsewhere) a worker that dies
+            # holds one task only
             slots = max(sum(client.nthreads().values()), 1)
             while todo and pending.count() < slots:
                 i = todo.popleft()
                 fut = client.submit(
-                    _dask_call, fn, shared_f, payloads[i], key=f"{desc}-{token}-{i}", pure=False
+                    _dask_call, fn, plugin, payloads[i], key=f"{desc}-{token}-{i}", pure=False
                 )
                 index[fut.key] = i
                 pending.add(fut)
@@ -473,25 +569,34 @@ def _dask(
         submit()
         while not pending.is_empty():
             batch = pending.next_batch(block=True)
-            died: dict[Any, int] = client.run_on_scheduler(_suspicious, keys=[f.key for f in batch])
+            try:
+                died: dict[Any, int] = client.run_on_scheduler(
+                    _suspicious, keys=[f.key for f in batch]
+                )
+            except Exception:  # a scheduler without tendonkit: attempts unknown, counted as 1
+                died = {}
             for fut in batch:
                 i = index.pop(fut.key)
+                starts = died.get(fut.key, 0)
                 if fut.status == "finished":
                     value, error, who, seconds = fut.result()
-                    yield Outcome(i, value, error, 1 + died.get(fut.key, 0), who, seconds)
+                    yield Outcome(i, value, error, 1 + starts, who, seconds)
                 else:
-                    why = fut.exception() if fut.status == "error" else fut.status
-                    yield Outcome(
-                        i,
-                        None,
-                        f"WorkerDied: {type(why).__name__}: {why}",
-                        1 + max(died.get(fut.key, 0), retries),
-                        "",
-                        0.0,
-                    )
+                    why = fut.exception() if fut.status == "error" else None
+                    name = type(why).__name__ if why is not None else fut.status
+                    if name == "KilledWorker":
+                        # the scheduler gave up after `retries` more starts, each on a worker
+                        # that died
+                        error, attempts = f"WorkerDied: {why}", max(starts, retries + 1)
+                    else:
+                        error, attempts = f"{name}: {why if why is not None else ''}", 1 + starts
+                    yield Outcome(i, None, error.strip(), attempts, "", 0.0)
                 fut.release()
             submit()
     finally:
+        if cluster is None:  # a cluster of others: leave its workers as they were
+            with contextlib.suppress(Exception):
+                client.unregister_worker_plugin(plugin)
         client.close()
         if cluster is not None:
             cluster.close()

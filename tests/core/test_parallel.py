@@ -58,7 +58,9 @@ def test_a_dead_worker_loses_only_its_task_which_is_retried(tmp_path):
     )
     assert [o.value for o in outs] == [0, 10, 20, 30, 40, 50]
     assert [o.attempts for o in outs] == [1, 1, 2, 1, 1, 1]
-    assert len({o.worker for o in outs}) >= 2  # the dead worker was replaced
+    # the dead worker was replaced: three processes ran tasks, a fresh one ran the retry
+    assert len({o.worker for o in outs}) == 3
+    assert outs[2].worker not in {o.worker for o in outs[:2]}
 
 
 def test_a_task_whose_workers_keep_dying_is_given_up_after_its_retries():
@@ -67,12 +69,27 @@ def test_a_task_whose_workers_keep_dying_is_given_up_after_its_retries():
     assert outs[1].attempts == 2 and outs[1].error.startswith("WorkerDied")
 
 
+def sleeps_on_one(shared: None, payload: int) -> int:
+    if payload == 1:
+        import time
+
+        time.sleep(60)
+    return payload
+
+
+def test_a_task_that_hangs_is_stopped_at_its_timeout_and_the_others_finish():
+    outs = sorted(run_tasks(sleeps_on_one, [0, 1, 2], jobs=2, timeout=3.0), key=lambda o: o.index)
+    assert [o.value for o in outs] == [0, None, 2]
+    assert outs[1].error.startswith("Timeout: the task ran longer than 3 s")
+
+
 @pytest.mark.parametrize(
     ("kwargs", "needle"),
     [
         ({"jobs": 0}, "jobs must be a whole number >= 1"),
         ({"retries": -1}, "retries must be a whole number >= 0"),
         ({"scheduler": " "}, "scheduler must be 'local' or an address"),
+        ({"scheduler": "lcoal"}, "neither 'local' nor an address such as tcp://host:8786"),
     ],
 )
 def test_bad_options_are_reported(kwargs, needle):

@@ -33,9 +33,10 @@ from tendonkit.robot.kinematics import commanded_tensions
 class Kinematic:
     horizon = 1
 
-    def __init__(self, marker="", die_on_q1=None):
+    def __init__(self, marker="", die_on_q1=None, always=False):
         self.marker = Path(marker) if marker else None
         self.die_on_q1 = die_on_q1
+        self.always = always
 
     def reset(self, u0=None, y0=None):
         self.first = True
@@ -43,6 +44,8 @@ class Kinematic:
     def step(self, y, r_future):
         if self.first and self.marker is not None and self.die_on_q1 is not None:
             self.first = False
+            if self.always:
+                os._exit(9)
             if abs(float(y[0]) - self.die_on_q1) < 1e-12 and not any(self.marker.glob("died*")):
                 (self.marker / "died").touch()
                 os._exit(9)
@@ -243,6 +246,7 @@ def test_a_bad_spec_lists_every_problem(folder, tmp_path, capsys):
             kind = "spiral"
             [criteria]
             require = ["rms_error_true_mrad <= 25", "happiness >= 1", "fallbacks is 0"]
+            rank_by = []
             """
         )
     )
@@ -258,12 +262,75 @@ def test_a_bad_spec_lists_every_problem(folder, tmp_path, capsys):
         "kind must be one of petal, circle, step",
         "unknown metric 'happiness'",
         "'fallbacks is 0' is not 'METRIC OP NUMBER'",
+        "rank_by must be a metric",
+    ):
+        assert needle in err, needle
+    # values of the wrong type, and a scheduler that is no address, are problems too
+    typed = folder / "typed.toml"
+    typed.write_text(
+        '[plant]\npreset = []\n[[controllers]]\nkind = "open_loop"\nhorizon = 3\n'
+        '[[references]]\nduration = "60"\n'
+    )
+    code = main(["campaign", str(typed), "--out", str(tmp_path / "o"), "--scheduler", "lcoal"])
+    err = capsys.readouterr().err
+    assert code == 2 and "Traceback" not in err
+    for needle in (
+        "preset must be one of nominal, paper_like",
+        "the open loop takes no horizon",
+        "duration must be a number of seconds > 0",
+        "neither 'local' nor an address",
     ):
         assert needle in err, needle
     assert not (tmp_path / "o").exists()
     with pytest.raises(OptionError, match="not valid TOML"):
         (folder / "broken.toml").write_text("[campaign\n")
         load_spec(folder / "broken.toml")
+
+
+def test_a_folder_in_use_is_refused_and_lost_rows_run_again_on_resume(folder, tmp_path):
+    import fcntl
+
+    spec = spec_from_dict(spec_dict(campaign={"draws": 1}), base_dir=folder)
+    out = tmp_path / "busy"
+    out.mkdir()
+    with (out / ".lock").open("a") as held:
+        fcntl.flock(held.fileno(), fcntl.LOCK_EX)  # another campaign is running here
+        with pytest.raises(OptionError, match="another campaign is writing"):
+            run_campaign(spec, out, jobs=1, report=False)
+    assert not (out / "runs.jsonl").exists()  # refused before touching anything
+    first = run_campaign(spec, out, jobs=1, report=False)
+    lines = (out / "runs.jsonl").read_text().splitlines()
+    lost = json.loads(lines[1])
+    lost.update(value=None, error="WorkerDied: the worker running it died 3 times", attempts=3)
+    (out / "runs.jsonl").write_text(lines[0] + "\n" + json.dumps(lost) + "\n")
+    again = run_campaign(spec, out, jobs=1, report=False)
+    assert again.resumed == 1 and again.summary["timing"]["runs_now"] == 1
+    assert again.table(deterministic=True) == first.table(deterministic=True)
+
+
+def test_a_run_whose_worker_always_dies_is_reported_on_dask(folder, tmp_path):
+    marker = tmp_path / "m"
+    marker.mkdir()
+    spec = spec_from_dict(
+        {
+            **spec_dict(campaign={"draws": 2}),
+            "controllers": [
+                {
+                    "name": "user",
+                    "kind": "python",
+                    "class": "usercontrol:Kinematic",
+                    "path": ".",
+                    "options": {"marker": str(marker), "die_on_q1": 0.0, "always": True},
+                }
+            ],
+        },
+        base_dir=folder,
+    )
+    res = run_campaign(spec, tmp_path / "out", jobs=2, scheduler="local", report=False)
+    died = [r for r in res.rows if r["status"] == "error"]
+    assert len(died) == 2 and all(r["error"].startswith("WorkerDied") for r in died)
+    assert all(r["attempts"] == 3 for r in died)  # the first start and 2 retries
+    assert res.summary["pass_rate"] == 0.0
 
 
 def test_draws_depend_on_the_seed_and_their_number_only(folder):

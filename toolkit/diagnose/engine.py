@@ -51,7 +51,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..dataset import Dataset
-from ..errors import OptionError, PluginError, TendonkitError
+from ..errors import OptionError, PluginError, SimulationError, TendonkitError
 from ..identification import training_fit, without_training_fit
 from ..manager import effects as effect_registry
 from ..manager import identifiers
@@ -590,7 +590,9 @@ def _outcomes(
             out: list[Trial | str] = [""] * len(names)
             bar.set_description(f"diagnose: {len(names)} effects on {settings.jobs} workers")
             for o in run_tasks(_effect_task, list(names), shared=shared, jobs=settings.jobs):
-                out[o.index] = o.value if o.error is None else o.error
+                if o.error is not None:  # raised in a worker: as it would have raised here
+                    raise SimulationError(f"Effect {names[o.index]!r} failed: {o.error}")
+                out[o.index] = o.value
                 bar.update()
             return out
     out = []

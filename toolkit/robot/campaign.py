@@ -26,7 +26,7 @@ import contextlib
 import csv
 import hashlib
 import importlib
-import itertools
+import inspect
 import json
 import math
 import operator
@@ -36,7 +36,7 @@ import sys
 import tempfile
 import time
 import tomllib
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -50,7 +50,14 @@ except ImportError:  # Windows
 
 from .. import __version__
 from ..errors import OptionError, OutputError, SchemaError, raise_if
-from ..parallel import Outcome, default_jobs, engine_name, run_tasks
+from ..parallel import (
+    Outcome,
+    dask_problems,
+    default_jobs,
+    engine_name,
+    run_tasks,
+    scheduler_problems,
+)
 from ..schema import Model
 from .campaign_report import render, summarise, write_outputs
 from .collect import fmu_parameters
@@ -65,6 +72,7 @@ __all__ = [
     "Criterion",
     "load_spec",
     "metrics_of",
+    "plant_items",
     "rerun",
     "run_campaign",
     "spec_from_dict",
@@ -108,6 +116,10 @@ _OPS: dict[str, Callable[[float, float], bool]] = {
 }
 _CRITERION = re.compile(r"^\s*([A-Za-z_][A-Za-z0-9_]*)\s*(<=|>=|==|!=|<|>)\s*(\S+)\s*$")
 _CONTROLLER_KINDS = ("mpc", "open_loop", "python")
+#: Seconds a run may take before its worker is stopped (``[campaign] timeout_s``).
+DEFAULT_TIMEOUT_S = 900.0
+#: Errors of the machinery rather than of the run: a resumed campaign runs those rows again.
+RETRY_ON_RESUME = ("WorkerDied", "KilledWorker", "cancelled", "lost", "Timeout")
 _SETTINGS = ("horizon", "Q", "R", "pair_weight", "solver")
 
 
@@ -189,8 +201,18 @@ class ReferenceSpec:
 
     @property
     def name(self) -> str:
-        """Label in the table, e.g. ``petal 60 s``."""
-        return self.kind + (f" {self.duration:g} s" if self.duration else "")
+        """Label in the table, e.g. ``petal 60 s`` (other options when not the defaults)."""
+        extra = [
+            f"{label} {value:g}{unit}"
+            for label, value, default, unit in (
+                ("speed", self.speed_cm_s, 2.5, " cm/s"),
+                ("amplitude", self.amplitude_cm, 9.0, " cm"),
+                ("petals", self.petals, 3, ""),
+            )
+            if value != default
+        ]
+        head = self.kind + (f" {self.duration:g} s" if self.duration else "")
+        return ", ".join([head, *extra])
 
     def build(self) -> Reference:
         """The reference."""
@@ -231,6 +253,8 @@ class CampaignSpec:
         The metric that orders the worst cases (larger is worse).
     min_pass_rate : float
         The campaign passes when this fraction of its runs pass.
+    timeout_s : float
+        A run still going after this many seconds is stopped and reported (local pool).
     base_dir : Path
         Relative paths (models, controller modules) are read from here.
     """
@@ -249,12 +273,13 @@ class CampaignSpec:
     rank_by: str = "rms_error_true_mrad"
     min_pass_rate: float = 1.0
     base_dir: Path = Path(".")
+    timeout_s: float = 900.0
 
     @property
     def n_draws(self) -> int:
         """Plant draws (grid: every combination)."""
         if self.sampling == "grid":
-            return int(np.prod([len(v.grid()) for v in self.vary])) if self.vary else 1
+            return math.prod(len(v.grid()) for v in self.vary)
         return self.draws
 
     @property
@@ -265,8 +290,12 @@ class CampaignSpec:
     def draw(self, d: int) -> dict[str, Any]:
         """The varied parameters of plant draw ``d`` (depends on ``seed`` and ``d`` only)."""
         if self.sampling == "grid":
-            combos = itertools.product(*(v.grid() for v in self.vary))
-            return dict(zip((v.name for v in self.vary), next(itertools.islice(combos, d, None))))
+            out: dict[str, Any] = {}
+            for v in reversed(self.vary):  # mixed radix: the last parameter varies fastest
+                grid = v.grid()
+                d, k = divmod(d, len(grid))
+                out[v.name] = grid[k]
+            return {v.name: out[v.name] for v in self.vary}
         rng = np.random.default_rng(np.random.SeedSequence(self.seed, spawn_key=(d,)))
         return {v.name: v.draw(rng) for v in self.vary}
 
@@ -342,6 +371,16 @@ def spec_from_dict(
     OptionError
         Listing every problem found.
     """
+    try:
+        return _spec_from_dict(data, Path(base_dir), source)
+    except (TypeError, AttributeError) as exc:  # a value of a type no check foresaw
+        raise OptionError(
+            f"Invalid campaign {source}: a value has the wrong type ({exc}); docs/campaigns.md "
+            "gives the spec's structure."
+        ) from None
+
+
+def _spec_from_dict(data: dict[str, Any], base_dir: Path, source: str) -> CampaignSpec:
     # lazy: keeps the robot room off tendonkit.fmu until a campaign is read
     from tendonkit.fmu.build import PARAMETER_RANGES, PRESETS, plant_parameters
 
@@ -361,7 +400,9 @@ def spec_from_dict(
     camp = camp if isinstance(camp, dict) else {}
     plant = plant if isinstance(plant, dict) else {}
     crit = crit if isinstance(crit, dict) else {}
-    _unknown(camp, ("name", "seed", "sampling", "draws", "repeats"), "[campaign]", problems)
+    _unknown(
+        camp, ("name", "seed", "sampling", "draws", "repeats", "timeout_s"), "[campaign]", problems
+    )
     _unknown(plant, ("preset", "effects", "vary"), "[plant]", problems)
     _unknown(crit, ("require", "rank_by", "min_pass_rate"), "[criteria]", problems)
 
@@ -390,8 +431,14 @@ def spec_from_dict(
         )
         repeats = 1
 
+    timeout_s = camp.get("timeout_s", DEFAULT_TIMEOUT_S)
+    if not (_number(timeout_s) and timeout_s > 0):
+        problems.append(
+            f"[campaign] timeout_s must be a number of seconds > 0, found {timeout_s!r}"
+        )
+        timeout_s = DEFAULT_TIMEOUT_S
     preset = plant.get("preset", "nominal")
-    if preset not in PRESETS:
+    if not isinstance(preset, str) or preset not in PRESETS:
         problems.append(f"[plant] preset must be one of {', '.join(PRESETS)}, found {preset!r}")
         preset = "nominal"
     effects = plant.get("effects", [])
@@ -426,7 +473,7 @@ def spec_from_dict(
         else:
             criteria.append(Criterion(m.group(1), m.group(2), value))
     rank_by = crit.get("rank_by", "rms_error_true_mrad")
-    if rank_by not in METRICS:
+    if not isinstance(rank_by, str) or rank_by not in METRICS:
         problems.append(
             f"[criteria] rank_by must be a metric ({', '.join(METRICS)}), found {rank_by!r}"
         )
@@ -451,6 +498,7 @@ def spec_from_dict(
         rank_by=rank_by,
         min_pass_rate=float(min_pass),
         base_dir=base,
+        timeout_s=float(timeout_s),
     )
     if not problems and spec.n_runs > 1_000_000:
         problems.append(f"the campaign has {spec.n_runs} runs; at most 1,000,000 in one spec")
@@ -464,7 +512,7 @@ def spec_from_dict(
             bad: list[str] = []
             for d in range(min(spec.n_draws, 100_000)):
                 try:
-                    plant_parameters(_plant_items(spec, spec.draw(d)), preset)
+                    plant_parameters(plant_items(spec.effects, spec.draw(d)), preset)
                 except OptionError as exc:
                     bad.append(f"draw {d}: {'; '.join(exc.problems or [str(exc)])}")
                     if len(bad) >= 3:
@@ -591,6 +639,10 @@ def _controllers(items: Any, base: Path, problems: list[str]) -> list[Controller
                 continue
             out.append(ControllerSpec(name, kind, str(full), settings))
         elif kind == "open_loop":
+            ignored = sorted(set(item) - {"name", "kind"})
+            if ignored:
+                problems.append(f"{where}: the open loop takes no {', '.join(ignored)}")
+                continue
             out.append(ControllerSpec(name, kind))
         else:
             target = item.get("class")
@@ -603,10 +655,16 @@ def _controllers(items: Any, base: Path, problems: list[str]) -> list[Controller
                 continue
             full_path = str((base / path).resolve()) if isinstance(path, str) else None
             try:
-                _user_class(target, full_path)
+                cls = _user_class(target, full_path)
+                inspect.signature(cls).bind(**options)
             except OptionError as exc:
                 problems.append(f"{where}: {exc}")
                 continue
+            except TypeError as exc:
+                problems.append(f"{where}: options do not fit {target}: {exc}")
+                continue
+            except ValueError:  # no signature to check (a builtin): the runs will tell
+                pass
             out.append(
                 ControllerSpec(name, kind, cls=target, path=full_path, options=dict(options))
             )
@@ -627,6 +685,20 @@ def _references(items: Any, problems: list[str]) -> list[ReferenceSpec]:
         where = f"[[references]] {n + 1}"
         _unknown(item, ("kind", "duration", "speed", "amplitude", "petals"), where, problems)
         kind = item.get("kind", "petal")
+        duration, petals = item.get("duration"), item.get("petals", 3)
+        if duration is not None and not (_number(duration) and duration > 0):
+            problems.append(
+                f"{where}: duration must be a number of seconds > 0, found {duration!r}"
+            )
+            continue
+        if not (isinstance(petals, int) and not isinstance(petals, bool) and 1 <= petals <= 12):
+            problems.append(
+                f"{where}: petals must be a whole number from 1 to 12, found {petals!r}"
+            )
+            continue
+        if not isinstance(kind, str):
+            problems.append(f"{where}: kind must be one of {', '.join(REFERENCES)}, found {kind!r}")
+            continue
         ref = ReferenceSpec(
             kind,
             item.get("duration"),
@@ -645,17 +717,21 @@ def _references(items: Any, problems: list[str]) -> list[ReferenceSpec]:
             problems.append(f"{where}: {' '.join(exc.problems) or str(exc)}")
             continue
         out.append(ref)
+    names = [r.name for r in out]
+    if len(set(names)) != len(names):
+        problems.append(f"[[references]]: two references are the same ({', '.join(names)})")
     return out
 
 
-def _plant_items(spec: CampaignSpec, varied: dict[str, Any]) -> list[str]:
-    """``--effect`` items of one draw: the fixed effects, the draw, and the drawn effects' switches."""
+def plant_items(effects: Sequence[str], varied: Mapping[str, Any]) -> list[str]:
+    """``--effect`` items of one plant: the fixed ``effects``, the ``varied`` parameters, and
+    the switches of the effects whose parameters are varied (unless set explicitly)."""
     # lazy: keeps the robot room off tendonkit.fmu until a campaign is read
     from tendonkit.fmu.build import plant_parameters
 
     names = set(plant_parameters())
-    items = list(spec.effects)
-    explicit = {e.partition("=")[0].strip() for e in spec.effects} | set(varied)
+    items = list(effects)
+    explicit = {e.partition("=")[0].strip() for e in effects} | set(varied)
     for name, value in varied.items():
         items.append(f"{name}={value}")
         switch = name.split("_")[0] + "_on"
@@ -668,27 +744,25 @@ def _plant_items(spec: CampaignSpec, varied: dict[str, Any]) -> list[str]:
 # -- one run, in a worker ----------------------------------------------------------------------
 
 _FMU_CACHE: dict[str, Path] = {}
+_PRIVATE: list[Path] = []
 
 
 def _materialise(blob: bytes, sha: str) -> Path:
     """The plant FMU in this worker's temporary folder (written once per process and content)."""
     if sha in _FMU_CACHE and _FMU_CACHE[sha].is_file():
         return _FMU_CACHE[sha]
-    folder = Path(tempfile.gettempdir()) / "tendonkit-campaign"
-    folder.mkdir(parents=True, exist_ok=True)
-    path = folder / f"plant-{sha[:16]}.fmu"
-    if not (path.is_file() and hashlib.sha256(path.read_bytes()).hexdigest() == sha):
-        fd, tmp = tempfile.mkstemp(dir=folder, suffix=".fmu")
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(blob)
-        os.replace(tmp, path)
+    if not _PRIVATE:  # this process's own folder (mode 0700): nobody else can swap the FMU
+        _PRIVATE.append(Path(tempfile.mkdtemp(prefix="tendonkit-campaign-")))
+    path = _PRIVATE[0] / f"plant-{sha[:16]}.fmu"
+    path.write_bytes(blob)
     _FMU_CACHE[sha] = path
     return path
 
 
 def _user_class(target: str, path: str | None) -> type:
+    # appended, not prepended: a file in the spec's folder never shadows a library
     if path and path not in sys.path:
-        sys.path.insert(0, path)
+        sys.path.append(path)
     module, _, name = target.partition(":")
     try:
         cls = getattr(importlib.import_module(module), name)
@@ -763,11 +837,11 @@ def _simulate(shared: dict[str, Any], payload: dict[str, Any]) -> CosimResult:
     fmu = _materialise(shared["fmu"], shared["fmu_sha"])
     ref = ReferenceSpec(**shared["references"][payload["reference"]]).build()
     c = shared["controllers"][payload["controller"]]
-    controller = _controller(c, shared["models"])
     # lazy: heavy (threadpoolctl); one BLAS thread whatever the engine, for identical numbers
     from threadpoolctl import threadpool_limits
 
     with threadpool_limits(limits=1):
+        controller = _controller(c, shared["models"])
         return run(fmu, ref, controller, parameters=payload["parameters"], name=c["name"])
 
 
@@ -836,7 +910,7 @@ def _payloads(spec: CampaignSpec, fmu_start: dict[str, Any]) -> list[dict[str, A
     for r in spec.runs():
         d = r["draw"]
         if d not in cache:
-            cache[d] = plant_parameters(_plant_items(spec, r["varied"]), spec.preset)
+            cache[d] = plant_parameters(plant_items(spec.effects, r["varied"]), spec.preset)
         full = {**cache[d], "seed": r["seed"]}
         overrides = {k: v for k, v in full.items() if fmu_start.get(k) != v}
         payload = {k: r[k] for k in ("run", "draw", "repeat", "reference", "controller", "seed")}
@@ -883,8 +957,15 @@ def _shared(spec: CampaignSpec, fmu: Path) -> dict[str, Any]:
 
 
 def _fingerprint(shared: dict[str, Any], payloads: list[dict[str, Any]]) -> str:
+    """What the rows depend on: the plant, models, controllers (a user's source too), runs."""
     h = hashlib.sha256()
+    h.update(__version__.encode())
     h.update(shared["fmu_sha"].encode())
+    for c in shared["controllers"]:
+        if c["kind"] == "python":
+            source = inspect.getsourcefile(_user_class(c["cls"], c["path"]))
+            if source:
+                h.update(Path(source).read_bytes())
     h.update(
         json.dumps(
             {k: v for k, v in shared.items() if k != "fmu"}, sort_keys=True, default=str
@@ -924,11 +1005,42 @@ def _row(spec: CampaignSpec, payload: dict[str, Any], rec: dict[str, Any]) -> di
 
 
 class _Journal:
-    """``runs.jsonl``: one line per finished run, flushed and synced as it comes."""
+    """``runs.jsonl``: one line per finished run, flushed and synced as it comes.
+
+    ``OUT/.lock`` (never replaced) is locked first and held until :meth:`close`, so a second
+    campaign on the same folder is refused before it reads or touches anything.  On resume,
+    rows the machinery lost (a worker that kept dying, a timeout) are run again; rows of runs
+    that raised are kept: they would raise again.
+    """
 
     def __init__(self, path: Path, fingerprint: str, n_runs: int, fresh: bool) -> None:
         self.path = path
         self.done: dict[int, dict[str, Any]] = {}
+        self.rerun = 0
+        folder = path.parent
+        try:
+            self.lock = (folder / ".lock").open("a")
+        except OSError as exc:
+            raise OutputError(f"Cannot write the campaign folder {str(folder)!r}: {exc}") from None
+        if fcntl is not None:  # not POSIX: two writers are the user's business
+            try:
+                fcntl.flock(self.lock.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:
+                self.lock.close()
+                raise OptionError(
+                    f"another campaign is writing {str(folder)!r}; wait for it or use another --out"
+                ) from None
+        try:
+            self._open(fingerprint, n_runs, fresh)
+        except OSError as exc:
+            self.lock.close()
+            raise OutputError(f"Cannot write the campaign journal {str(path)!r}: {exc}") from None
+        except OptionError:
+            self.lock.close()
+            raise
+
+    def _open(self, fingerprint: str, n_runs: int, fresh: bool) -> None:
+        path = self.path
         manifest = path.with_name("campaign.json")
         if fresh and path.exists():
             stamp = time.strftime("%Y%m%d-%H%M%S")
@@ -939,13 +1051,17 @@ class _Journal:
                 old = json.loads(manifest.read_text())
             if old.get("fingerprint") != fingerprint:
                 raise OptionError(
-                    f"{str(path.parent)!r} holds the rows of another campaign (its spec, models or "
-                    "plant differ); use another --out, or --fresh to set those rows aside "
-                    f"(kept as runs-*.jsonl.old)."
+                    f"{str(path.parent)!r} holds the rows of another campaign (its spec, models, "
+                    "controllers, plant or tendonkit version differ); use another --out, or "
+                    "--fresh to set those rows aside (kept as runs-*.jsonl.old)."
                 )
             for line in path.read_text(encoding="utf-8").splitlines():
                 with contextlib.suppress(ValueError, KeyError, TypeError):
                     rec = json.loads(line)
+                    error = rec.get("error") or ""
+                    if error.startswith(RETRY_ON_RESUME):
+                        self.rerun += 1
+                        continue
                     self.done[int(rec["run"])] = rec  # a line cut by the interruption is skipped
         manifest.write_text(
             json.dumps(
@@ -954,30 +1070,29 @@ class _Journal:
         )
         # rewrite the valid lines only, so a cut line does not end up in the middle
         tmp = path.with_suffix(".tmp")
-        tmp.write_text("".join(json.dumps(r) + "\n" for r in self.done.values()), encoding="utf-8")
+        with tmp.open("w", encoding="utf-8") as fh:
+            fh.write("".join(json.dumps(r) + "\n" for r in self.done.values()))
+            fh.flush()
+            os.fsync(fh.fileno())
         os.replace(tmp, path)
         self.fh = path.open("a", encoding="utf-8")
-        self._lock()
-
-    def _lock(self) -> None:
-        if fcntl is None:  # not POSIX: two writers are the user's business
-            return
-        try:
-            fcntl.flock(self.fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            self.fh.close()
-            raise OptionError(
-                f"another campaign is writing {str(self.path.parent)!r}; wait for it or use another --out"
-            ) from None
 
     def write(self, rec: dict[str, Any]) -> None:
-        self.fh.write(json.dumps(rec, default=float) + "\n")
-        self.fh.flush()
-        os.fsync(self.fh.fileno())
+        try:
+            self.fh.write(json.dumps(rec, default=float) + "\n")
+            self.fh.flush()
+            os.fsync(self.fh.fileno())
+        except OSError as exc:
+            raise OutputError(
+                f"Cannot write the campaign journal {str(self.path)!r}: {exc}; the runs written "
+                "so far are kept: run the campaign again to resume."
+            ) from None
         self.done[int(rec["run"])] = rec
 
     def close(self) -> None:
-        self.fh.close()
+        with contextlib.suppress(OSError):
+            self.fh.close()
+        self.lock.close()
 
 
 def run_campaign(
@@ -1023,6 +1138,12 @@ def run_campaign(
 
     if not isinstance(spec, CampaignSpec):
         spec = load_spec(spec)
+    problems = []
+    if jobs is not None and not (isinstance(jobs, int) and jobs >= 1):
+        problems.append(f"jobs must be a whole number >= 1, found {jobs!r}")
+    if scheduler is not None:
+        problems += scheduler_problems(str(scheduler)) + dask_problems()
+    raise_if(problems, OptionError, f"Campaign {spec.name!r} cannot run:")
     out = Path(out)
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -1050,6 +1171,7 @@ def run_campaign(
             scheduler=scheduler,
             progress=progress,
             desc=f"campaign {spec.name}",
+            timeout=spec.timeout_s,
         ):
             journal.write(_record(todo[o.index]["run"], o))
     finally:
@@ -1090,6 +1212,10 @@ def rerun(
 
     Runs are deterministic, so this gives the row's metrics again (timing aside).
     """
+    if not (isinstance(run_number, int) and 0 <= run_number < result.spec.n_runs):
+        raise OptionError(
+            f"run must be a whole number from 0 to {result.spec.n_runs - 1}, found {run_number!r}"
+        )
     # lazy: keeps the robot room off tendonkit.fmu until a campaign runs
     from tendonkit.fmu.build import cached_plant_fmu, plant_parameters
 

@@ -8,6 +8,7 @@ controller's worst run (simulated again here: runs are deterministic).
 from __future__ import annotations
 
 import csv
+import itertools
 import json
 import math
 import os
@@ -18,6 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..errors import OutputError
 from ..report import Report
 from .figures import plot_tracking
 
@@ -216,20 +218,27 @@ def write_outputs(
     report: bool = True,
 ) -> None:
     """``runs.csv``, ``summary.json`` and (``report``) ``figures/`` and ``index.html``."""
-    write_csv(out / "runs.csv", rows)
-    figures: list[tuple[Path, str]] = []
-    if report:
-        folder = out / "figures"
-        folder.mkdir(exist_ok=True)
-        figures += _parameter_figure(spec, rows, folder)
-        figures += _distribution_figure(spec, rows, folder)
-        figures += _worst_figures(summary, shared, payloads, simulate, folder)
-        summary["figures"] = [str(p) for p, _ in figures]
+    try:
+        write_csv(out / "runs.csv", rows)
+        _write_summary(out, summary)  # before anything that simulates again
+        figures: list[tuple[Path, str]] = []
+        if report:
+            folder = out / "figures"
+            folder.mkdir(exist_ok=True)
+            figures += _parameter_figure(spec, rows, folder)
+            figures += _distribution_figure(spec, rows, folder)
+            figures += _worst_figures(summary, shared, payloads, simulate, folder)
+            summary["figures"] = [str(p) for p, _ in figures]
+            _write_summary(out, summary)
+            _html(spec, out, summary, figures)
+    except OSError as exc:
+        raise OutputError(f"Cannot write the campaign's outputs in {str(out)!r}: {exc}") from None
+
+
+def _write_summary(out: Path, summary: dict[str, Any]) -> None:
     tmp = out / "summary.json.tmp"
     tmp.write_text(json.dumps(_json_ready(summary), indent=1, allow_nan=False))
     os.replace(tmp, out / "summary.json")
-    if report:
-        _html(spec, out, summary, figures)
 
 
 def _json_ready(x: Any) -> Any:
@@ -269,7 +278,7 @@ def _parameter_figure(
     axes = fig.subplots(nrows, cols, squeeze=False)
     rank = spec.rank_by
     for ax, v in zip(axes.flat, varied):
-        for c, color in zip(spec.controllers, COLORS):
+        for c, color in zip(spec.controllers, itertools.cycle(COLORS)):
             mine = [r for r in rows if r["controller"] == c.name]
             x = np.array([float(r[v.name]) for r in mine])
             y = np.array([float(r[rank]) for r in mine])
@@ -305,7 +314,7 @@ def _distribution_figure(
     fig = _canvas(4.0 * len(metrics), 3.2)
     axes = fig.subplots(1, len(metrics), squeeze=False)[0]
     for ax, m in zip(axes, metrics):
-        for c, color in zip(spec.controllers, COLORS):
+        for c, color in zip(spec.controllers, itertools.cycle(COLORS)):
             a = _finite([r[m] for r in rows if r["controller"] == c.name])
             if len(a):
                 ax.hist(a, bins=min(30, max(5, len(a) // 3)), alpha=0.55, color=color, label=c.name)
@@ -330,7 +339,14 @@ def _worst_figures(
         w = c.get("worst")
         if not w or w["status"] != "ok":
             continue
-        res = simulate(shared, payloads[w["run"]])
+        try:
+            res = simulate(shared, payloads[w["run"]])
+        except Exception as exc:  # a run that passed once in a worker: report, don't crash
+            summary.setdefault("figure_problems", []).append(
+                f"run {w['run']} could not be simulated again for its figure: "
+                f"{type(exc).__name__}: {exc}"
+            )
+            continue
         sub = folder / f"worst_{k}"
         [png] = plot_tracking({f"run {w['run']}: {name}": res}, sub)
         path = folder / f"worst_{k}_tracking.png"

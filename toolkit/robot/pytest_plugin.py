@@ -39,6 +39,7 @@ from .campaign import (
     Criterion,
     ReferenceSpec,
     metrics_of,
+    plant_items,
     run_campaign,
     spec_from_dict,
 )
@@ -106,14 +107,17 @@ class CosimCheck:
             if name not in METRICS:
                 problems.append(f"unknown metric {name!r}; metrics: {', '.join(METRICS)}")
                 continue
-            if isinstance(want, str):
-                m = _CHECK.match(want)
-                if not m:
-                    problems.append(f"{name}={want!r} is not 'OP NUMBER'")
-                    continue
-                c = Criterion(name, m.group(1), float(m.group(2)))
-            else:
-                c = Criterion(name, "<=", float(want))
+            try:
+                if isinstance(want, str):
+                    m = _CHECK.match(want)
+                    if not m:
+                        raise ValueError(want)
+                    c = Criterion(name, m.group(1), float(m.group(2)))
+                else:
+                    c = Criterion(name, "<=", float(want))
+            except (TypeError, ValueError):
+                problems.append(f"{name}={want!r} is not a number or 'OP NUMBER'")
+                continue
             if not c.holds(self.metrics):
                 failed.append(f"{c} (got {self.metrics[name]:.4g})")
         if problems:
@@ -173,11 +177,8 @@ def cosim(plant_fmu: Callable[[str], Path]) -> Callable[..., CosimCheck]:
         name: str | None = None,
     ) -> CosimCheck:
         fmu = plant_fmu(preset)
-        items = list(effects) + [f"{k}={v}" for k, v in (plant or {}).items()]
-        for k in plant or {}:
-            switch = k.split("_")[0] + "_on"
-            if not k.endswith("_on") and switch in fmu_parameters(fmu):
-                items.append(f"{switch}=1")
+        # the same plant a campaign row with these effects and this draw describes
+        items = plant_items(list(effects), dict(plant or {}))
         full = plant_parameters([*items, f"seed={seed}"], preset)
         start = fmu_parameters(fmu)
         overrides = {k: v for k, v in full.items() if start.get(k) != v}

@@ -489,6 +489,10 @@ def _connect(scheduler: str, n_workers: int, retries: int) -> tuple[Any, Any]:
         "distributed.scheduler.allowed-failures": retries,
         "distributed.scheduler.worker-saturation": 1.0,
     }
+    if scheduler == "local":
+        # our own workers: no statistical profiler sampling every task thread every 10 ms
+        # (it costs the co-simulations about 5 % of a core each; benchmarks/README.md)
+        config["distributed.worker.profile.enabled"] = False
     cluster = None
     with dask.config.set(config):
         try:

@@ -18,10 +18,15 @@ REAL_DATA = SHARED / "data" / "real"
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """Tests that read the real benchmark data are marked ``real_data`` (``make check`` skips them)."""
+    """Tests that read the real benchmark data are marked ``real_data`` (``make check`` skips them).
+
+    Tests marked ``first`` (the longest ones) are moved to the front: xdist hands tests out in
+    collection order, and a two-minute test handed out last would finish the run alone.
+    """
     for item in items:
         if "real_data" in getattr(item, "fixturenames", ()):
             item.add_marker(pytest.mark.real_data)
+    items.sort(key=lambda item: item.get_closest_marker("first") is None)  # stable
 
 
 @pytest.fixture

@@ -381,7 +381,7 @@ def _campaign(
                 "vary": {"friction_mu_k": "spec", "forcelag_tau": "spec", "delay_s": "spec"},
             },
             "controllers": [{"name": "linear MPC (N4SID)", "model": "n4sid.json"}],
-            "references": [{"kind": "petal", "duration": 10.0 if quick else 30.0}],
+            "references": [{"kind": "petal", "duration": 6.0 if quick else 30.0}],
             "criteria": {
                 "require": ["rms_error_true_mrad <= 35", "fallbacks == 0", "bound_violations == 0"]
             },

@@ -501,7 +501,7 @@ def _connect(scheduler: str, n_workers: int, retries: int) -> tuple[Any, Any]:
                     n_workers=n_workers,
                     threads_per_worker=1,
                     processes=True,
-                    dashboard_address=None,
+                    dashboard_address=":0",  # any free port: never clash with a cluster of the user
                     silence_logs=50,  # logging.CRITICAL: a killed worker is reported by us
                 )
                 return Client(cluster), cluster

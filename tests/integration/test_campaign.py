@@ -61,6 +61,12 @@ def folder(tmp_path_factory):
     return d
 
 
+def user_controller(**options):
+    """The user's controller of USER_CONTROLLER, as a [[controllers]] table."""
+    table = {"name": "user", "kind": "python", "class": "usercontrol:Kinematic", "path": "."}
+    return {**table, **({"options": options} if options else {})}
+
+
 def spec_dict(**over):
     spec = {
         "campaign": {"name": "small", "seed": 3, "draws": 3},
@@ -107,35 +113,14 @@ def test_local_cluster_and_process_pool_give_the_serial_table(folder, tmp_path):
 def test_a_killed_worker_loses_only_its_run_on_both_engines(folder, tmp_path):
     # run 2 (draw 1, the user's controller) kills its worker on its first attempt
     base = spec_dict(controllers=[])
-    serial_spec = spec_from_dict(
-        {
-            **base,
-            "controllers": [
-                {"name": "user", "kind": "python", "class": "usercontrol:Kinematic", "path": "."}
-            ],
-        },
-        base_dir=folder,
-    )
+    serial_spec = spec_from_dict({**base, "controllers": [user_controller()]}, base_dir=folder)
     reference = run_campaign(serial_spec, tmp_path / "ref", jobs=1, report=False)
     q1_at_start = rerun(reference, 1).y[0, 0]  # the measured q1 the controller sees first in run 1
     for engine, kwargs in (("pool", {"jobs": 2}), ("dask", {"jobs": 2, "scheduler": "local"})):
         marker = tmp_path / f"marker-{engine}"
         marker.mkdir()
-        spec = spec_from_dict(
-            {
-                **base,
-                "controllers": [
-                    {
-                        "name": "user",
-                        "kind": "python",
-                        "class": "usercontrol:Kinematic",
-                        "path": ".",
-                        "options": {"marker": str(marker), "die_on_q1": float(q1_at_start)},
-                    }
-                ],
-            },
-            base_dir=folder,
-        )
+        killer = user_controller(marker=str(marker), die_on_q1=float(q1_at_start))
+        spec = spec_from_dict({**base, "controllers": [killer]}, base_dir=folder)
         res = run_campaign(spec, tmp_path / engine, report=False, **kwargs)
         assert (marker / "died").exists(), engine  # a worker really died
         assert [r["attempts"] for r in res.rows] == [1, 2, 1], engine
@@ -311,20 +296,9 @@ def test_a_folder_in_use_is_refused_and_lost_rows_run_again_on_resume(folder, tm
 def test_a_run_whose_worker_always_dies_is_reported_on_dask(folder, tmp_path):
     marker = tmp_path / "m"
     marker.mkdir()
+    dies = user_controller(marker=str(marker), die_on_q1=0.0, always=True)
     spec = spec_from_dict(
-        {
-            **spec_dict(campaign={"draws": 2}),
-            "controllers": [
-                {
-                    "name": "user",
-                    "kind": "python",
-                    "class": "usercontrol:Kinematic",
-                    "path": ".",
-                    "options": {"marker": str(marker), "die_on_q1": 0.0, "always": True},
-                }
-            ],
-        },
-        base_dir=folder,
+        {**spec_dict(campaign={"draws": 2}), "controllers": [dies]}, base_dir=folder
     )
     res = run_campaign(spec, tmp_path / "out", jobs=2, scheduler="local", report=False)
     died = [r for r in res.rows if r["status"] == "error"]

@@ -284,7 +284,10 @@ def _parameter_figure(
             y = np.array([float(r[rank]) for r in mine])
             ok = np.array([bool(r["passed"]) for r in mine])
             ax.scatter(x[ok], y[ok], s=14, color=color, label=c.name, alpha=0.8)
-            ax.scatter(x[~ok], y[~ok], s=30, color=color, marker="x", label=f"{c.name} (failed)")
+            if np.any(~ok):
+                ax.scatter(
+                    x[~ok], y[~ok], s=30, color=color, marker="x", label=f"{c.name} (failed)"
+                )
         for crit in spec.criteria:
             if crit.metric == rank:
                 ax.axhline(crit.value, color="k", ls="--", lw=1)

@@ -332,3 +332,41 @@ def test_draws_depend_on_the_seed_and_their_number_only(folder):
     }
     assert set(DETERMINISTIC) >= {"run", "rms_error_true_mrad", "fallbacks", "status"}
     assert "wall_s" not in DETERMINISTIC
+
+
+def test_a_pool_worker_killed_from_outside_mid_campaign_loses_only_its_run(folder, tmp_path):
+    """SIGKILL to a busy pool worker while the campaign runs: it completes, nothing is lost."""
+    import multiprocessing
+    import os
+    import signal
+    import threading
+    import time
+
+    spec = spec_from_dict(
+        spec_dict(campaign={"draws": 4}, references=[{"kind": "petal", "duration": 8.0}]),
+        base_dir=folder,
+    )
+    reference = run_campaign(spec, tmp_path / "serial", jobs=1, report=False)
+    out = tmp_path / "pool"
+    result: dict = {}
+    thread = threading.Thread(
+        target=lambda: result.update(r=run_campaign(spec, out, jobs=2, report=False))
+    )
+    thread.start()
+    journal = out / "runs.jsonl"
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and not (journal.exists() and journal.read_text()):
+        time.sleep(0.02)
+    victims = [p for p in multiprocessing.active_children() if p.is_alive()]
+    assert victims, "no pool worker to kill"
+    os.kill(victims[0].pid, signal.SIGKILL)
+    thread.join(timeout=300)
+    res = result["r"]
+    assert all(r["status"] == "ok" for r in res.rows) and len(res.rows) == 8
+    assert not victims[0].is_alive()
+    # the run it held (if it was not between two runs) started again, on whichever worker
+    # was free first; nothing else was touched
+    assert sum(r["attempts"] > 1 for r in res.rows) <= 1
+    victim = f":{victims[0].pid}"
+    assert sum(r["worker"].endswith(victim) for r in res.rows) <= 1  # it finished at most one
+    assert res.table(deterministic=True) == reference.table(deterministic=True)

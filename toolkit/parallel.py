@@ -55,6 +55,7 @@ __all__ = [
     "Outcome",
     "dask_problems",
     "default_jobs",
+    "dumps",
     "engine_name",
     "map_tasks",
     "pow_task",
@@ -145,6 +146,23 @@ def _call(
         if os.environ.get("TENDONKIT_TASK_TRACEBACK"):
             error += "\n" + traceback.format_exc()
     return value, error, time.perf_counter() - t0
+
+
+def dumps(obj: Any) -> bytes:
+    """``obj`` as bytes for a worker: pickle, or cloudpickle (installed with dask) for closures
+    and local classes; PicklingError when neither can."""
+    try:
+        return pickle.dumps(obj)
+    except (pickle.PicklingError, AttributeError, TypeError) as exc:
+        try:
+            # lazy: heavy, and only there with the cluster extra (dask brings it)
+            import cloudpickle
+        except ImportError:
+            raise pickle.PicklingError(str(exc)) from None
+        try:
+            return bytes(cloudpickle.dumps(obj))
+        except Exception as exc2:
+            raise pickle.PicklingError(str(exc2)) from None
 
 
 def _check(jobs: int | None, scheduler: str | None, retries: int) -> int:
@@ -342,7 +360,7 @@ def _processes(
     timeout: float | None,
 ) -> Iterator[Outcome]:
     ctx = multiprocessing.get_context("spawn")
-    blob = pickle.dumps(shared)
+    blob = dumps(shared)
     queue: deque[int] = deque(range(len(payloads)))
     attempts = [0] * len(payloads)
     timed_out: set[int] = set()

@@ -41,7 +41,7 @@ DOORS = {"tendonkit.diagnose", "tendonkit.mpc"}
 HEAVY = {
     "cvxpy", "pysindy", "fmpy", "pythonfmu", "matplotlib", "control", "slycot", "scipy",
     "clarabel", "osqp", "tqdm", "threadpoolctl", "libcosimpy", "ecospy", "distributed",
-    "dask", "numba",
+    "dask", "numba", "cloudpickle",
 }  # fmt: skip
 #: The one module allowed to name other rooms (as strings) and to import inside functions.
 COMPAT = "tendonkit._compat"

@@ -57,7 +57,7 @@ from ..manager import effects as effect_registry
 from ..manager import identifiers
 from ..metrics import fit
 from ..output_error import refine as refine_by_simulation
-from ..parallel import run_tasks
+from ..parallel import dumps, run_tasks
 from ..predict import predict
 from ..schema import ARX, Model
 from ..simulate import aligned
@@ -169,10 +169,10 @@ def diagnose(
         is handed on and reported (:func:`refine_named`); the candidates are compared by
         their equation-error fits either way.
     jobs : int
-        Worker processes trying the first step's effects (:mod:`tendonkit.parallel`); 1
-        (default) tries them here, which is faster unless the data are long (starting a
-        worker costs about 2 s; benchmarks/README.md, "Sweeps").  The diagnosis does not
-        depend on it.
+        Worker processes trying each step's effects (:mod:`tendonkit.parallel`; the steps
+        after the first need cloudpickle, which dask brings); 1 (default) tries them here,
+        which is faster unless the data are long (starting workers costs about 2 s a step;
+        benchmarks/README.md, "Sweeps").  The diagnosis does not depend on it.
 
     Returns
     -------
@@ -558,8 +558,9 @@ def run_effects(
     With ``settings.jobs > 1`` the effects are tried on worker processes
     (:mod:`tendonkit.parallel`): each worker gets the context once and sends its trial back
     without its structure builder (a closure), which :func:`_with_builder` rebuilds here for
-    the one effect that is named.  A context that cannot be sent (a later step's structure is
-    a closure) is tried here.
+    the one effect that is named.  A later step's context holds a closure (the structure of
+    the step before): it is sent with cloudpickle, which dask brings; without it that step's
+    effects are tried here.
     """
     trials: list[Trial] = []
     skipped: list[dict[str, str]] = []
@@ -583,9 +584,9 @@ def _outcomes(
     shared = (ctx, ref, valid, dataclasses.replace(settings, jobs=1))
     if settings.jobs > 1 and len(names) > 1:
         try:
-            pickle.dumps(shared)
-        except (pickle.PicklingError, AttributeError, TypeError):
-            pass
+            dumps(shared)
+        except pickle.PicklingError:
+            pass  # a later step's structure is a closure and cloudpickle is not installed
         else:
             out: list[Trial | str] = [""] * len(names)
             bar.set_description(f"diagnose: {len(names)} effects on {settings.jobs} workers")
@@ -709,6 +710,7 @@ def continue_sequence(
         if chosen is None or chosen.model is None:
             steps.append(_step(step_diag, len(steps) + 1, None, None, valid))
             break
+        step_trials = _with_builder(step_trials, step_diag, registry, ctx, ref, valid, settings)
         named = next(t for t in step_trials if t.effect == chosen.effect)
         model, build = refine_named(chosen.model, named.build, identifier, train, settings)
         steps.append(_step(step_diag, len(steps) + 1, None, model, valid))

@@ -61,6 +61,7 @@ __all__ = [
     "pow_task",
     "run_tasks",
     "scheduler_problems",
+    "task_problems",
     "worker_id",
 ]
 
@@ -165,7 +166,8 @@ def dumps(obj: Any) -> bytes:
             raise pickle.PicklingError(str(exc2)) from None
 
 
-def _check(jobs: int | None, scheduler: str | None, retries: int) -> int:
+def task_problems(jobs: int | None, scheduler: str | None, retries: int = RETRIES) -> list[str]:
+    """Every reason :func:`run_tasks` cannot run with these options (empty when it can)."""
     problems = []
     if jobs is not None and (not isinstance(jobs, int) or jobs < 1):
         problems.append(f"jobs must be a whole number >= 1, found {jobs!r}")
@@ -173,10 +175,9 @@ def _check(jobs: int | None, scheduler: str | None, retries: int) -> int:
         problems.append(f"retries must be a whole number >= 0, found {retries!r}")
     if scheduler is not None and not (isinstance(scheduler, str) and scheduler.strip()):
         problems.append(f"scheduler must be 'local' or an address, found {scheduler!r}")
-    elif scheduler is not None and scheduler != "local":
-        problems += scheduler_problems(scheduler)
-    raise_if(problems, OptionError, "Cannot run the tasks:")
-    return jobs if jobs is not None else default_jobs()
+    elif scheduler is not None:
+        problems += scheduler_problems(scheduler) + dask_problems()
+    return problems
 
 
 def scheduler_problems(scheduler: str) -> list[str]:
@@ -252,7 +253,8 @@ def run_tasks(
     SimulationError
         The dask scheduler cannot be reached.
     """
-    n_jobs = _check(jobs, scheduler, retries)
+    raise_if(task_problems(jobs, scheduler, retries), OptionError, "Cannot run the tasks:")
+    n_jobs = jobs if jobs is not None else default_jobs()
     # lazy: heavy (tqdm)
     from tqdm import tqdm
 

@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import OptionError
-from ..parallel import dask_problems, default_jobs, scheduler_problems
+from ..parallel import default_jobs, task_problems
 from ..robot.campaign import load_spec, run_campaign
 from ..robot.campaign_report import render
 from .common import check_output_dir, raise_problems, write_json
@@ -74,13 +74,10 @@ def cmd_campaign(args: argparse.Namespace) -> int:
         spec = load_spec(args.spec)
     except OptionError as exc:
         problems.append(str(exc).replace("\n", "\n   "))
-    if args.jobs is not None and args.jobs < 1:
-        problems.append(f"--jobs must be >= 1, found {args.jobs}.")
-    if args.scheduler is not None:
-        problems += [
-            f"--{p}" if p.startswith("scheduler") else p for p in scheduler_problems(args.scheduler)
-        ]
-        problems += dask_problems()
+    # the engine's own checks, named as the options are named here
+    problems += [
+        p if p.startswith("a dask") else f"--{p}" for p in task_problems(args.jobs, args.scheduler)
+    ]
     out = Path(args.out) if args.out else None
     if out is None and spec is not None:
         out = Path(args.spec).resolve().parent / f"{spec.name.replace(' ', '_')}-campaign"

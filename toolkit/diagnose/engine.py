@@ -57,7 +57,7 @@ from ..manager import effects as effect_registry
 from ..manager import identifiers
 from ..metrics import fit
 from ..output_error import refine as refine_by_simulation
-from ..parallel import dumps, run_tasks
+from ..parallel import run_tasks
 from ..predict import predict
 from ..schema import ARX, Model
 from ..simulate import aligned
@@ -562,9 +562,16 @@ def run_effects(
     the step before): it is sent with cloudpickle, which dask brings; without it that step's
     effects are tried here.
     """
+    outcomes = _on_workers(names, ctx, ref, valid, settings, bar)
+    if outcomes is None:
+        outcomes = []
+        for name in names:
+            bar.set_description(f"diagnose: {name}")
+            outcomes.append(try_effect(registry.get(name), name, ctx, ref, valid, settings))
+            bar.update()
     trials: list[Trial] = []
     skipped: list[dict[str, str]] = []
-    for name, outcome in zip(names, _outcomes(registry, names, ctx, ref, valid, settings, bar)):
+    for name, outcome in zip(names, outcomes):
         if isinstance(outcome, Trial):
             trials.append(outcome)
         else:
@@ -572,35 +579,29 @@ def run_effects(
     return trials, skipped
 
 
-def _outcomes(
-    registry: Any,
+def _on_workers(
     names: Sequence[str],
     ctx: Context,
     ref: Reference,
     valid: Dataset,
     settings: Settings,
     bar: Any,
-) -> list[Trial | str]:
+) -> list[Trial | str] | None:
+    """The effects' outcomes from ``settings.jobs`` workers; None when they are tried here
+    (one worker, one effect, or a context that cannot be sent)."""
+    if settings.jobs == 1 or len(names) < 2:
+        return None
     shared = (ctx, ref, valid, dataclasses.replace(settings, jobs=1))
-    if settings.jobs > 1 and len(names) > 1:
-        try:
-            dumps(shared)
-        except pickle.PicklingError:
-            pass  # a later step's structure is a closure and cloudpickle is not installed
-        else:
-            out: list[Trial | str] = [""] * len(names)
-            bar.set_description(f"diagnose: {len(names)} effects on {settings.jobs} workers")
-            for o in run_tasks(_effect_task, list(names), shared=shared, jobs=settings.jobs):
-                if o.error is not None:  # raised in a worker: as it would have raised here
-                    raise SimulationError(f"Effect {names[o.index]!r} failed: {o.error}")
-                out[o.index] = o.value
-                bar.update()
-            return out
-    out = []
-    for name in names:
-        bar.set_description(f"diagnose: {name}")
-        out.append(try_effect(registry.get(name), name, ctx, ref, valid, settings))
-        bar.update()
+    out: list[Trial | str] = [""] * len(names)
+    bar.set_description(f"diagnose: {len(names)} effects on {settings.jobs} workers")
+    try:
+        for o in run_tasks(_effect_task, list(names), shared=shared, jobs=settings.jobs):
+            if o.error is not None:  # raised in a worker: as it would have raised here
+                raise SimulationError(f"Effect {names[o.index]!r} failed: {o.error}")
+            out[o.index] = o.value
+            bar.update()
+    except pickle.PicklingError:  # raised before any worker starts: nothing was counted
+        return None  # a later step's structure is a closure and cloudpickle is not installed
     return out
 
 

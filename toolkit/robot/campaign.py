@@ -23,7 +23,6 @@ names, in this process and in every worker — that is what naming it asks for.
 from __future__ import annotations
 
 import contextlib
-import csv
 import hashlib
 import importlib
 import inspect
@@ -36,7 +35,7 @@ import sys
 import tempfile
 import time
 import tomllib
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -50,14 +49,7 @@ except ImportError:  # Windows
 
 from .. import __version__
 from ..errors import OptionError, OutputError, SchemaError, raise_if
-from ..parallel import (
-    Outcome,
-    dask_problems,
-    default_jobs,
-    engine_name,
-    run_tasks,
-    scheduler_problems,
-)
+from ..parallel import Outcome, default_jobs, engine_name, run_tasks, task_problems
 from ..schema import Model
 from .campaign_report import render, summarise, write_outputs
 from .collect import fmu_parameters
@@ -143,6 +135,14 @@ class Criterion:
 
     def __str__(self) -> str:
         return f"{self.metric} {self.op} {self.value:g}"
+
+    @classmethod
+    def parse(cls, text: str) -> Criterion:
+        """``"metric OP number"``; ValueError when it is not that (or the number not finite)."""
+        m = _CRITERION.match(text)
+        if not m or not math.isfinite(value := float(m.group(3))):
+            raise ValueError(f"{text!r} is not 'METRIC OP NUMBER'")
+        return cls(m.group(1), m.group(2), value)
 
 
 @dataclass(frozen=True)
@@ -457,21 +457,19 @@ def _spec_from_dict(data: dict[str, Any], base_dir: Path, source: str) -> Campai
         problems.append(f"[criteria] require must be a list of strings, found {require!r}")
         require = []
     for text in require:
-        m = _CRITERION.match(text)
-        value = None
-        if m:
-            with contextlib.suppress(ValueError):
-                value = float(m.group(3))
-        if not m or value is None or not math.isfinite(value):
+        try:
+            c = Criterion.parse(text)
+        except ValueError:
             problems.append(
                 f"[criteria] {text!r} is not 'METRIC OP NUMBER' (OP one of <= < >= > == !=)"
             )
-        elif m.group(1) not in METRICS:
+            continue
+        if c.metric not in METRICS:
             problems.append(
-                f"[criteria] unknown metric {m.group(1)!r}; metrics: {', '.join(METRICS)}"
+                f"[criteria] unknown metric {c.metric!r}; metrics: {', '.join(METRICS)}"
             )
         else:
-            criteria.append(Criterion(m.group(1), m.group(2), value))
+            criteria.append(c)
     rank_by = crit.get("rank_by", "rms_error_true_mrad")
     if not isinstance(rank_by, str) or rank_by not in METRICS:
         problems.append(
@@ -901,13 +899,26 @@ class CampaignResult:
         return [{k: v for k, v in r.items() if k in keep} for r in self.rows]
 
 
-def _payloads(spec: CampaignSpec, fmu_start: dict[str, Any]) -> list[dict[str, Any]]:
+def _plant_fmu(spec: CampaignSpec, plant_fmu: str | Path | None) -> Path:
+    """The plant FMU given, or the one of the spec's preset (built once, cached)."""
+    # lazy: keeps the robot room off tendonkit.fmu until a campaign runs
+    from tendonkit.fmu.build import cached_plant_fmu, plant_parameters
+
+    if plant_fmu is not None:
+        return Path(plant_fmu)
+    return cached_plant_fmu(plant_parameters([], spec.preset))
+
+
+def _payloads(
+    spec: CampaignSpec, fmu_start: dict[str, Any], runs: list[dict[str, Any]] | None = None
+) -> list[dict[str, Any]]:
+    """What each run's worker needs: its numbers, the plant's overrides, the drawn values."""
     # lazy: keeps the robot room off tendonkit.fmu until a campaign is read
     from tendonkit.fmu.build import plant_parameters
 
     out = []
     cache: dict[int, dict[str, Any]] = {}
-    for r in spec.runs():
+    for r in spec.runs() if runs is None else runs:
         d = r["draw"]
         if d not in cache:
             cache[d] = plant_parameters(plant_items(spec.effects, r["varied"]), spec.preset)
@@ -1134,26 +1145,16 @@ def run_campaign(
     CampaignResult
     """
     # lazy: keeps the robot room off tendonkit.fmu until a campaign runs
-    from tendonkit.fmu.build import cached_plant_fmu, plant_parameters
 
     if not isinstance(spec, CampaignSpec):
         spec = load_spec(spec)
-    problems = []
-    if jobs is not None and not (isinstance(jobs, int) and jobs >= 1):
-        problems.append(f"jobs must be a whole number >= 1, found {jobs!r}")
-    if scheduler is not None:
-        problems += scheduler_problems(str(scheduler)) + dask_problems()
-    raise_if(problems, OptionError, f"Campaign {spec.name!r} cannot run:")
+    raise_if(task_problems(jobs, scheduler), OptionError, f"Campaign {spec.name!r} cannot run:")
     out = Path(out)
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise OutputError(f"Cannot create the campaign folder {str(out)!r}: {exc}") from None
-    fmu = (
-        Path(plant_fmu)
-        if plant_fmu is not None
-        else cached_plant_fmu(plant_parameters([], spec.preset))
-    )
+    fmu = _plant_fmu(spec, plant_fmu)
     start = _fmu_start(fmu)
     payloads = _payloads(spec, start)
     shared = _shared(spec, fmu)
@@ -1178,14 +1179,15 @@ def run_campaign(
         journal.close()
     wall = time.perf_counter() - t0
     rows = [_row(spec, p, journal.done[p["run"]]) for p in payloads]
-    engine = {
-        "engine": engine_name(n_jobs, scheduler),
-        "workers": 1 if engine_name(n_jobs, scheduler) == "serial" else n_jobs,
+    engine = engine_name(n_jobs, scheduler)
+    timing = {
+        "engine": engine,
+        "workers": 1 if engine == "serial" else n_jobs,
         "scheduler": scheduler,
         "wall_s": wall,
         "runs_now": len(todo),
     }
-    summary = summarise(spec, rows, engine, resumed, tuple(METRICS))
+    summary = summarise(spec, rows, timing, resumed, tuple(METRICS))
     write_outputs(spec, out, rows, summary, shared, payloads, _simulate, report=report)
     return CampaignResult(spec, out, rows, summary, resumed)
 
@@ -1217,19 +1219,8 @@ def rerun(
             f"run must be a whole number from 0 to {result.spec.n_runs - 1}, found {run_number!r}"
         )
     # lazy: keeps the robot room off tendonkit.fmu until a campaign runs
-    from tendonkit.fmu.build import cached_plant_fmu, plant_parameters
 
     spec = result.spec
-    fmu = (
-        Path(plant_fmu)
-        if plant_fmu is not None
-        else cached_plant_fmu(plant_parameters([], spec.preset))
-    )
-    payloads = _payloads(spec, _fmu_start(fmu))
-    return _simulate(_shared(spec, fmu), payloads[run_number])
-
-
-def iter_table(path: str | Path) -> Iterator[dict[str, str]]:
-    """Rows of a campaign's ``runs.csv`` as strings."""
-    with Path(path).open(newline="", encoding="utf-8") as fh:
-        yield from csv.DictReader(fh)
+    fmu = _plant_fmu(spec, plant_fmu)
+    [payload] = _payloads(spec, _fmu_start(fmu), [spec.runs()[run_number]])
+    return _simulate(_shared(spec, fmu), payload)

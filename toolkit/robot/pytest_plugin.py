@@ -23,7 +23,6 @@ campaign takes), so one test runs on several plants and each draw is its own tes
 
 from __future__ import annotations
 
-import re
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -48,8 +47,6 @@ from .controllers import make_controller
 from .cosim import CosimResult, run
 
 __all__ = ["CosimCheck", "draws"]
-
-_CHECK = re.compile(r"^\s*(<=|>=|==|!=|<|>)\s*(\S+)\s*$")
 
 
 def draws(vary: Mapping[str, Any], n: int, seed: int = 0, sampling: str = "random") -> list[Any]:
@@ -108,13 +105,8 @@ class CosimCheck:
                 problems.append(f"unknown metric {name!r}; metrics: {', '.join(METRICS)}")
                 continue
             try:
-                if isinstance(want, str):
-                    m = _CHECK.match(want)
-                    if not m:
-                        raise ValueError(want)
-                    c = Criterion(name, m.group(1), float(m.group(2)))
-                else:
-                    c = Criterion(name, "<=", float(want))
+                text = f"{name} {want}" if isinstance(want, str) else f"{name} <= {float(want)!r}"
+                c = Criterion.parse(text)
             except (TypeError, ValueError):
                 problems.append(f"{name}={want!r} is not a number or 'OP NUMBER'")
                 continue

@@ -71,7 +71,7 @@ FMI_HEADERS = (
     "fmi3PlatformTypes.h",
 )
 RESOURCE = "model.tkm"
-MAGIC, FORMAT = 7318.2026, 1.0  # tendonkit_runtime.h
+MAGIC, FORMAT = 7318.2026, 2.0  # tendonkit_runtime.h
 _LIMIT = 100_000  # the runtime's bound on counts and lags
 #: Part of the binaries' cache key: change it with the compiler commands of :func:`_compile`.
 _BUILD_RECIPE = "2"
@@ -92,7 +92,9 @@ _BLOCK_CODES = {
 }
 _FN_CODES = {name: i for i, name in enumerate(FUNCTIONS)}
 #: The factor functions the C runtime implements (``fn()`` in tendonkit_runtime.c).
-C_FUNCTIONS = ("pow", "sin", "cos", "tanh", "sign", "abs", "dead_zone", "sat", "relu")
+C_FUNCTIONS = (
+    "pow", "sin", "cos", "tanh", "sign", "abs", "dead_zone", "sat", "relu", "play", "bouc_wen",
+)  # fmt: skip
 #: Functions msvcrt.dll provides to the Windows build (no mingw runtime is linked).
 _MSVCRT = (
     "calloc cos fclose fopen fread free fseek ftell malloc memcpy memmove memset pow sin "
@@ -163,9 +165,10 @@ def _factors(model: Model, terms: Sequence[Term]) -> tuple[list[float], list[flo
                 src, col = (
                     (1, outs.index(f.signal)) if f.signal in outs else (0, ins.index(f.signal))
                 )
-            rows += [src, col, f.lag, f.diff, _FN_CODES[f.fn], f.power, f.scale, f.offset, f.param]
-        ptr.append(float(len(rows) // 9))
-    return ptr, [float(v) for v in rows], len(rows) // 9
+            rows += [src, col, f.lag, f.diff, _FN_CODES[f.fn], f.power, f.scale, f.offset, f.param,
+                     f.param2]  # fmt: skip
+        ptr.append(float(len(rows) // 10))
+    return ptr, [float(v) for v in rows], len(rows) // 10
 
 
 def model_resource(

@@ -4,7 +4,10 @@
   (with ``tanh²`` for asymmetric friction) — or a play on every input (friction in a force
   transmission is a dead band in force space that follows the direction of motion);
 - ``nonlinear_stiffness``: odd powers ``y[k-1]^3`` (and ``^5``), or ``tanh(y[k-1]/s)``, per output;
-- ``gravity``: a constant (operating-point load) and ``cos(y[k-1])`` for angle outputs.
+- ``gravity``: a constant (operating-point load) and ``cos(y[k-1])`` for angle outputs;
+- ``hysteresis``: a hysteresis operator of the past output — a Bouc-Wen state
+  ``bouc_wen(y[k-1])`` or a play ``play(y[k-1])`` (a restoring force with a memory of the
+  path, carried from step to step by every simulator).
 
 Each effect proposes a few structures and scales, fits each on the training data with
 :func:`tendonkit.diagnose.extend.extend_with_terms` (which works for every representation) and keeps
@@ -485,6 +488,97 @@ class StaticNonlinearity(_TermEffect):
         }
 
 
+def _stop(y: np.ndarray, width: float) -> np.ndarray:
+    """The stop operator ``y - play(y)``: a force that grows with the displacement since the
+    last reversal and levels off at ``±width`` (elastic-perfectly-plastic)."""
+    return y - Factor("y", fn="play", param=width).value(y)
+
+
+class Hysteresis(_TermEffect):
+    """Hysteresis inside the dynamics: a restoring force that depends on the path, not only on
+    the present position and velocity (Bouc-Wen, Prandtl-Ishlinskii)."""
+
+    name = "hysteresis"
+    cause = "hysteresis"
+    description = (
+        "Hysteresis: adds a hysteresis operator of every output — a Bouc-Wen state "
+        "dh = dy - a|dy|h - b·dy|h| (a smooth loop, softening or hardening) or a play of "
+        "half-width w (elastic-perfectly-plastic) — whose memory the simulation carries."
+    )
+    #: Bouc-Wen shapes ``a`` per unit of the output's standard deviation (``a = 1``: the
+    #: loop's yield is reached after about one standard deviation of travel) and ``b / a``
+    #: (negative: the loop hardens on loading, as in the Bouc-Wen benchmark; 0.5: softens).
+    bouc_wen_a = (0.25, 0.5, 1.0, 2.0)
+    bouc_wen_ratio = (-1.5, -0.5, 0.5)
+    #: Half-widths of a play, as fractions of the output's standard deviation.
+    play_fractions = (0.05, 0.15, 0.4)
+
+    def candidates(self, ctx: Context) -> list[tuple[dict[str, Any], list[Term]]]:
+        y = ctx.train.y
+        mu = y.mean(axis=0)
+        sd = np.where(y.std(axis=0) > 0, y.std(axis=0), 1.0)
+        names = ctx.train.outputs
+        outs: list[tuple[dict[str, Any], list[Term]]] = []
+        for a in self.bouc_wen_a:
+            for ratio in self.bouc_wen_ratio:
+                terms = [
+                    Term(
+                        (
+                            Factor(
+                                n,
+                                fn="bouc_wen",
+                                lag=1,
+                                scale=float(1 / sd[j]),
+                                offset=float(mu[j]),
+                                param=a,
+                                param2=a * ratio,
+                            ),
+                        )
+                    )
+                    for j, n in enumerate(names)
+                ]
+                outs.append(({"structure": "bouc_wen", "a": a, "b": a * ratio}, terms))
+        for w in self.play_fractions:
+            terms = [
+                Term(
+                    (
+                        Factor(
+                            n,
+                            fn="play",
+                            lag=1,
+                            scale=float(1 / sd[j]),
+                            offset=float(mu[j]),
+                            param=w,
+                        ),
+                    )
+                )
+                for j, n in enumerate(names)
+            ]
+            outs.append(({"structure": "play", "half_width_in_std": w}, terms))
+        return outs
+
+    def signature(
+        self, ctx: Context, baseline: Model, valid: Dataset, res: ResidualAnalysis
+    ) -> dict[str, Any]:
+        """Correlation of the residual with a stop operator of the output, its part along the
+        direction of motion removed: a force that builds up with the travel since the last
+        reversal (hysteresis), not one that jumps at the reversal (Coulomb friction)."""
+        out = {}
+        for j, n in enumerate(valid.outputs):
+            y = valid.y[:, j] - valid.y[:, j].mean()
+            sd = float(y.std()) or 1.0
+            stop = _stop(y / sd, 0.3)
+            direction = np.sign(_velocity(y, 1))
+            both = np.column_stack([direction, y / sd, np.ones_like(y)])
+            coef = np.linalg.lstsq(both, stop, rcond=None)[0]
+            out[n] = _corr(res.residual[:, j], stop - both @ coef)
+        return {
+            "statistic": "corr(residual, stop operator ⟂ sign(velocity), y)",
+            "value": out,
+            "signal": "travel since the last reversal",
+        }
+
+
 @hookimpl
 def tendonkit_register_effects(registry):  # type: ignore[no-untyped-def]
     """Register the term-based effects."""
@@ -492,3 +586,4 @@ def tendonkit_register_effects(registry):  # type: ignore[no-untyped-def]
     registry.add(NonlinearStiffness())
     registry.add(Gravity())
     registry.add(StaticNonlinearity())
+    registry.add(Hysteresis())

@@ -28,6 +28,8 @@ def _factor(rng: np.random.Generator, names: list[str], min_lag: dict[str, int])
         scale=float(rng.uniform(0.5, 2.0)),
         offset=float(rng.normal(0.0, 0.2)),
         param=float(rng.uniform(0.0, 0.5)),
+        # a Bouc-Wen operator's second shape (the others ignore it)
+        param2=float(rng.uniform(-0.5, 0.5)) if fn == "bouc_wen" else 0.0,
     )
 
 

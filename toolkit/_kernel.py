@@ -38,6 +38,8 @@ assert list(_CODE) == [
     "dead_zone",
     "sat",
     "relu",
+    "play",
+    "bouc_wen",
 ], "the kernel's function codes follow terms.FUNCTIONS"
 
 
@@ -59,6 +61,7 @@ class FlatTerms:
     scale: FloatArray
     offset: FloatArray
     param: FloatArray
+    param2: FloatArray
 
     @property
     def n_terms(self) -> int:
@@ -70,21 +73,23 @@ def flatten(
     terms: Sequence[Term], first: Mapping[str, int], second: Mapping[str, int]
 ) -> FlatTerms:
     """Flat arrays for ``terms`` reading signals by name from two buffers."""
-    rows: list[tuple[int, int, int, int, int, float, float, float, float]] = []
+    rows: list[tuple[int, int, int, int, int, float, float, float, float, float]] = []
     ptr = [0]
     for t in terms:
         for f in t.factors:
             src, col = (0, first[f.signal]) if f.signal in first else (1, second[f.signal])
             rows.append(
-                (src, col, f.lag, f.diff, _CODE[f.fn], float(f.power), f.scale, f.offset, f.param)
-            )
+                (src, col, f.lag, f.diff, _CODE[f.fn], float(f.power), f.scale, f.offset, f.param,
+                 f.param2)
+            )  # fmt: skip
         ptr.append(len(rows))
-    cols = list(zip(*rows, strict=True)) if rows else [()] * 9
+    cols = list(zip(*rows, strict=True)) if rows else [()] * 10
     i = [np.asarray(c, dtype=np.int64) for c in cols[:5]]
     x = [np.asarray(c, dtype=np.float64) for c in cols[5:]]
     return FlatTerms(
-        np.asarray(ptr, dtype=np.int64), i[0], i[1], i[2], i[3], i[4], x[0], x[1], x[2], x[3]
-    )
+        np.asarray(ptr, dtype=np.int64), i[0], i[1], i[2], i[3], i[4], x[0], x[1], x[2], x[3],
+        x[4],
+    )  # fmt: skip
 
 
 # -- the kernels ---------------------------------------------------------------------------------
@@ -124,8 +129,31 @@ def _fn(code: int, z: float, power: float, param: float) -> float:  # pragma: no
 
 
 @njit(cache=True, nogil=True, inline="always")
+def _memory(code, z, param, param2, st, f):  # pragma: no cover - numba
+    """One step of a hysteresis operator (terms._step_stateful), its state ``st[f]`` advanced."""
+    a = st[f, 0]
+    if code == 9:  # play
+        if np.isnan(a):
+            st[f, 0] = z
+            return z
+        p = min(max(a, z - param), z + param)
+        st[f, 0] = p
+        return p
+    if np.isnan(a):  # bouc_wen, from h = 0
+        st[f, 0] = z
+        st[f, 1] = 0.0
+        return 0.0
+    h = st[f, 1]
+    d = z - a
+    h = h + d - param * abs(d) * h - param2 * d * abs(h)
+    st[f, 0] = z
+    st[f, 1] = h
+    return h
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _terms_at(  # pragma: no cover - numba
-    a, b, kk, ptr, src, col, lag, diff, code, power, scale, offset, param, theta
+    a, b, kk, ptr, src, col, lag, diff, code, power, scale, offset, param, param2, st, theta
 ):
     for t in range(ptr.shape[0] - 1):
         prod = 1.0
@@ -134,14 +162,18 @@ def _terms_at(  # pragma: no cover - numba
             s = buf[kk - lag[f], col[f]]
             if diff[f]:
                 s = s - buf[kk - lag[f] - diff[f], col[f]]
-            prod *= _fn(code[f], (s - offset[f]) * scale[f], power[f], param[f])
+            z = (s - offset[f]) * scale[f]
+            if code[f] >= 9:
+                prod *= _memory(code[f], z, param[f], param2[f], st, f)
+            else:
+                prod *= _fn(code[f], z, power[f], param[f])
         theta[t] = prod
 
 
 @njit(cache=True, nogil=True)
 def arx_loop(  # pragma: no cover - numba
     U, Y, G, off, Acat, na, start, L, coef_t, ptr, src, col, lag, diff, code, power, scale,
-    offset, param,
+    offset, param, param2, st,
 ):  # fmt: skip
     """``Y[k+L] = off + Σ_l G[l]·U[k+L-l] - Acat·[Y[k+L-1]; …; Y[k+L-na]] + coef_t·θ(k)``.
 
@@ -163,7 +195,10 @@ def arx_loop(  # pragma: no cover - numba
     for k in range(start, N):
         kk = k + L
         if nt:
-            _terms_at(U, Y, kk, ptr, src, col, lag, diff, code, power, scale, offset, param, theta)
+            _terms_at(
+                U, Y, kk, ptr, src, col, lag, diff, code, power, scale, offset, param, param2, st,
+                theta,
+            )  # fmt: skip
         ok = True
         for i in range(ny):
             acc = off[i]
@@ -235,8 +270,9 @@ def arx_linear_loop(U, Y, G, g0, off, Acat, na, start, L):  # pragma: no cover -
 
 @njit(cache=True, nogil=True)
 def ss_terms_loop(  # pragma: no cover - numba
-    U, Y, u, x, A, B, C, D, E, L, ptr, src, col, lag, diff, code, power, scale, offset, param
-):
+    U, Y, u, x, A, B, C, D, E, L, ptr, src, col, lag, diff, code, power, scale, offset, param,
+    param2, st,
+):  # fmt: skip
     """State space with terms: ``y = Cx + Du``, ``x⁺ = Ax + Bu + Eθ``; θ reads ``U`` and ``Y``."""
     N = u.shape[0]
     n, ny, nu = A.shape[0], C.shape[0], u.shape[1]
@@ -251,7 +287,10 @@ def ss_terms_loop(  # pragma: no cover - numba
             for j in range(nu):
                 acc += D[i, j] * u[k, j]
             Y[kk, i] = acc
-        _terms_at(U, Y, kk, ptr, src, col, lag, diff, code, power, scale, offset, param, theta)
+        _terms_at(
+            U, Y, kk, ptr, src, col, lag, diff, code, power, scale, offset, param, param2, st,
+            theta,
+        )  # fmt: skip
         ok = True
         for i in range(n):
             acc = 0.0
@@ -272,7 +311,7 @@ def ss_terms_loop(  # pragma: no cover - numba
 
 @njit(cache=True, nogil=True)
 def sparse_loop(  # pragma: no cover - numba
-    U, X, coef, L, ptr, src, col, lag, diff, code, power, scale, offset, param
+    U, X, coef, L, ptr, src, col, lag, diff, code, power, scale, offset, param, param2, st
 ):
     """Sparse map ``x[k+1] = θ(k)ᵀ·coef``; θ reads inputs ``U`` and states ``X`` (in place)."""
     N = U.shape[0] - L
@@ -281,7 +320,10 @@ def sparse_loop(  # pragma: no cover - numba
     theta = np.empty(nt)
     for k in range(N - 1):
         kk = k + L
-        _terms_at(U, X, kk, ptr, src, col, lag, diff, code, power, scale, offset, param, theta)
+        _terms_at(
+            U, X, kk, ptr, src, col, lag, diff, code, power, scale, offset, param, param2, st,
+            theta,
+        )  # fmt: skip
         ok = True
         for i in range(nx):
             acc = 0.0
@@ -322,7 +364,7 @@ def rate_loop(s, rate):  # pragma: no cover - numba
 
 
 def run_terms(kernel, *args, flat: FlatTerms):  # type: ignore[no-untyped-def]
-    """Call ``kernel(*args, <flat terms>)``."""
+    """Call ``kernel(*args, <flat terms>, <hysteresis state>)``; the state starts afresh."""
     return kernel(
         *args,
         flat.ptr,
@@ -335,6 +377,8 @@ def run_terms(kernel, *args, flat: FlatTerms):  # type: ignore[no-untyped-def]
         flat.scale,
         flat.offset,
         flat.param,
+        flat.param2,
+        np.full((max(flat.code.shape[0], 1), 2), np.nan),
     )
 
 

@@ -200,8 +200,14 @@ def _time_varying_part(
     for i, term in enumerate(rep.terms):
         ins = [f for f in term.factors if f.signal in inputs]
         outs = [f for f in term.factors if f.signal not in inputs]
-        if len(outs) > 1 or (
-            outs and ((outs[0].fn, outs[0].power, outs[0].diff) != ("pow", 1, 0) or outs[0].lag < 1)
+        # A hysteresis operator runs from the first simulated step, as in the kernel: general.
+        if (
+            term.stateful
+            or len(outs) > 1
+            or (
+                outs
+                and ((outs[0].fn, outs[0].power, outs[0].diff) != ("pow", 1, 0) or outs[0].lag < 1)
+            )
         ):
             general.append(term)
             gcoef.append(coef[i])

@@ -15,7 +15,9 @@ differences through the compiled simulation):
 - ``sparse_map``: the non-zero coefficients (the sparsity pattern stays);
 - blocks: every parameter but a delay's (a fractional delay's samples are continuous, but a
   change of its integer part is a change of structure) — dead-zone thresholds and centres,
-  saturation limits, play widths, lag poles, rate limits.
+  saturation limits, play widths, lag poles, rate limits;
+- the shapes of hysteresis operators in the terms (a ``play``'s half-width, a ``bouc_wen``
+  operator's ``param`` and ``param2``).
 
 The initial state is estimated from each experiment's data at every evaluation (as
 ``simulate(..., initial="estimate")``).  The model as given is returned when no lower
@@ -37,6 +39,7 @@ from .errors import SchemaError
 from .identification import training_fit
 from .schema import ARX, Block, Model, SparseMap, StateSpace
 from .simulate import aligned, simulate
+from .terms import Term
 
 FloatArray = NDArray[np.float64]
 
@@ -117,6 +120,14 @@ def _codec(model: Model, blocks: bool = True) -> tuple[FloatArray, Callable[[Flo
         # a one-sided clip writes its open end as ±1e300: no limit, not a parameter
         and abs(b.params[name]) < 1e299
     ]
+    # the shapes of hysteresis operators (a play's half-width, a Bouc-Wen operator's two)
+    shapes = [
+        (t, j, key)
+        for t, term in enumerate(rep.terms)
+        for j, f in enumerate(term.factors)
+        if f.stateful
+        for key in (("param",) if f.fn == "play" else ("param", "param2"))
+    ]
     theta0 = np.concatenate(
         [arr[mask] for _, arr, mask in parts]
         + [
@@ -126,7 +137,8 @@ def _codec(model: Model, blocks: bool = True) -> tuple[FloatArray, Callable[[Flo
                     for s, i, n in free_blocks
                 ],
                 dtype=float,
-            )
+            ),
+            np.array([getattr(rep.terms[t].factors[j], key) for t, j, key in shapes], dtype=float),
         ]
     )
 
@@ -139,6 +151,20 @@ def _codec(model: Model, blocks: bool = True) -> tuple[FloatArray, Callable[[Flo
             out[mask] = theta[pos : pos + k]
             pos += k
             new[name] = out
+        new_terms: tuple[Term, ...] = tuple(rep.terms)
+        if shapes:
+            terms = [list(term.factors) for term in rep.terms]
+            for k, (t, j, key) in enumerate(shapes):
+                value = float(theta[len(theta) - len(shapes) + k])
+                if terms[t][j].fn == "play":
+                    value = abs(value)  # a half-width
+                f = terms[t][j]
+                terms[t][j] = (
+                    dataclasses.replace(f, param=value)
+                    if key == "param"
+                    else dataclasses.replace(f, param2=value)
+                )
+            new_terms = tuple(Term(tuple(fs)) for fs in terms)
         if isinstance(rep, StateSpace):
             r: Any = dataclasses.replace(rep, **new)
         elif isinstance(rep, ARX):
@@ -157,6 +183,8 @@ def _codec(model: Model, blocks: bool = True) -> tuple[FloatArray, Callable[[Flo
         else:
             assert isinstance(rep, SparseMap)
             r = dataclasses.replace(rep, coefficients=new["coefficients"])
+        if shapes:
+            r = dataclasses.replace(r, terms=new_terms)
         ins, outs = list(model.input_blocks), list(model.output_blocks)
         for s, i, n in free_blocks:
             chain = ins if s == "in" else outs

@@ -81,6 +81,11 @@ def _predict_ss_terms(
     if k == 1:
         return Xp[:-1] @ rep.C.T + u @ rep.D.T + y0
     ct = CompiledTerms(rep.terms)
+    if ct.stateful:
+        raise SimulationError(
+            f"{k}-step prediction of a state space with hysteresis terms (play, bouc_wen) would "
+            "need their state estimated at every sample; use k=1 or a simulation."
+        )
     L = max((t.max_lag for t in rep.terms), default=1)
     out = y_raw.copy()
     names_in, names_out = model.input_names, model.output_names

@@ -182,6 +182,8 @@ class Stepper:
         model, rep = self.model, self._rep
         self.time_index = 0
         self._dead = False
+        if getattr(self, "_ct", None) is not None:  # hysteresis operators start afresh
+            self._ct.reset()
         self._in_blocks = _Chain(model.input_blocks, model.input_names)
         self._out_blocks = _Chain(model.output_blocks, model.output_names)
         if isinstance(rep, StateSpace):
@@ -225,6 +227,7 @@ class Stepper:
             "y_hist": [arr(a) for a in self._y_hist],
             "x_hist": [arr(a) for a in self._x_hist],
             "blocks": blocks,
+            "hysteresis": arr(self._ct.state) if getattr(self, "_ct", None) is not None else [],
         }
 
     def set_state(self, state: Mapping[str, Any]) -> None:
@@ -253,12 +256,19 @@ class Stepper:
                 [arr(a, n, name) for a in state[name]]
                 for name, n in (("u_hist", self.nu), ("y_hist", self.ny), ("x_hist", nx))
             ]
+            ct = getattr(self, "_ct", None)
+            memory = None
+            if ct is not None:  # states saved before hysteresis operators existed have none
+                saved = state.get("hysteresis") or [None] * ct.state.size
+                memory = arr(saved, ct.state.size, "hysteresis").reshape(ct.state.shape)
             self.time_index = int(state["time_index"])
             self._dead = bool(state["dead"])
         except (KeyError, TypeError, ValueError) as exc:
             raise DataError(f"Not a saved stepper state: {exc}.") from exc
         if nx:
             self._x = x
+        if memory is not None:
+            self._ct.state[...] = memory
         for target, values in zip((self._u_hist, self._y_hist, self._x_hist), hists, strict=True):
             target.clear()  # the same deques: the term sources keep pointing at them
             target.extend(values)
@@ -290,7 +300,7 @@ class Stepper:
         The returned outputs are those of the sample just left (what :meth:`outputs` gave).
         """
         ub = self._in_blocks.commit(self._check(u))
-        y = self._raw_output(ub)
+        y = self._raw_output(ub, commit=True)
         if not self._dead:
             self._update(ub, y)
         self.time_index += 1
@@ -312,8 +322,11 @@ class Stepper:
             raise DataError(f"Inputs must be finite; found {arr.tolist()}.")
         return arr
 
-    def _raw_output(self, ub: FloatArray) -> FloatArray:
-        """Modelled outputs before the output blocks (NaN once diverged)."""
+    def _raw_output(self, ub: FloatArray, commit: bool = False) -> FloatArray:
+        """Modelled outputs before the output blocks (NaN once diverged).
+
+        ``commit``: this sample is being left, so hysteresis operators in an ARX's terms advance.
+        """
         if self._dead:
             return np.full(self.ny, np.nan)
         rep = self._rep
@@ -322,7 +335,7 @@ class Stepper:
         elif isinstance(rep, SparseMap):
             y = self._x[list(rep.output_states)].copy()
         else:
-            y = self._arx_output(rep, ub)
+            y = self._arx_output(rep, ub, commit)
         if not np.all(np.isfinite(y)):
             self._dead = True
             return np.full(self.ny, np.nan)
@@ -343,7 +356,7 @@ class Stepper:
             if isinstance(rep, SparseMap):
                 self._x_hist.append(self._x.copy())
 
-    def _arx_output(self, rep: ARX, ub: FloatArray) -> FloatArray:
+    def _arx_output(self, rep: ARX, ub: FloatArray, commit: bool = False) -> FloatArray:
         self._histories(ub)
         u_h, y_h = self._u_hist, self._y_hist
         acc = np.zeros(self.ny) + self._off
@@ -363,7 +376,7 @@ class Stepper:
                 else:
                     reads.append(float(y_h[-lag][names_y.index(name)]))
             try:
-                theta = self._eval(reads)
+                theta = self._eval(reads, commit)
             except (OverflowError, ValueError):
                 return np.full(self.ny, np.nan)
             acc = acc + self._coef_t @ theta

@@ -39,7 +39,13 @@ FUNCTIONS: dict[str, str] = {
     "dead_zone": "sign(z)*max(|z|-param, 0)",
     "sat": "clip(z, -param, param)",
     "relu": "max(z-param, 0)",
+    "play": "play operator of half-width param along time (stateful)",
+    "bouc_wen": "Bouc-Wen state h += dz - param*|dz|*h - param2*dz*|h| along time (stateful)",
 }
+#: Functions with a memory: their value at a sample depends on the factor's earlier samples.
+#: They are hysteresis operators, run along time from the first sample a simulator evaluates
+#: (play: from ``z`` itself; Bouc-Wen: from ``h = 0``); see :meth:`Factor.value`.
+STATEFUL = frozenset({"play", "bouc_wen"})
 
 _FN_CODES = {name: i for i, name in enumerate(FUNCTIONS)}
 FloatArray = NDArray[np.float64]
@@ -67,7 +73,20 @@ class Factor:
     scale, offset : float
         Affine normalisation applied before ``fn``.
     param : float
-        Width of a dead zone, level of a saturation, knee of a relu.
+        Width of a dead zone, level of a saturation, knee of a relu, half-width of a play,
+        the first shape parameter of a Bouc-Wen operator.
+    param2 : float
+        The second shape parameter of a Bouc-Wen operator (unused by the other functions).
+
+    Notes
+    -----
+    ``play`` and ``bouc_wen`` are *hysteresis operators* (:data:`STATEFUL`): their value at a
+    sample depends on the factor's past, so a simulator carries their state from step to step
+    and a whole-record evaluation runs them along the record.  The play follows ``z`` with a
+    lag of at most ``param`` (backlash; a sum of plays of several widths is a
+    Prandtl-Ishlinskii operator); the Bouc-Wen state obeys the discretised
+    ``dh = dz - param·|dz|·h - param2·dz·|h|`` (Bouc-Wen with exponent 1 and unit initial
+    stiffness; ``h`` saturates at ``±1/(param + param2)`` when that is positive).
     """
 
     signal: str
@@ -78,6 +97,12 @@ class Factor:
     scale: float = 1.0
     offset: float = 0.0
     param: float = 0.0
+    param2: float = 0.0
+
+    @property
+    def stateful(self) -> bool:
+        """Whether this factor is a hysteresis operator with a memory (:data:`STATEFUL`)."""
+        return self.fn in STATEFUL
 
     @property
     def label(self) -> str:
@@ -93,8 +118,10 @@ class Factor:
             )
         if self.fn == "pow":
             return name if self.power == 1 else f"{name}^{self.power}"
-        if self.fn in ("dead_zone", "sat", "relu"):
+        if self.fn in ("dead_zone", "sat", "relu", "play"):
             return f"{self.fn}({name};{self.param:g})"
+        if self.fn == "bouc_wen":
+            return f"bouc_wen({name};{self.param:g},{self.param2:g})"
         return f"{self.fn}({name})"
 
     @property
@@ -109,7 +136,13 @@ class Factor:
         return (s - self.offset) * self.scale
 
     def value(self, z: FloatArray) -> FloatArray:
-        """Apply the function to the normalised signal ``z``."""
+        """Apply the function to the normalised signal ``z``.
+
+        A hysteresis operator (:attr:`stateful`) reads ``z`` as a record along its first axis
+        and runs from its first sample.
+        """
+        if self.stateful:
+            return _run_stateful(self.fn, np.asarray(z, dtype=float), self.param, self.param2)[0]
         return _apply(
             _FN_CODES[self.fn],
             np.asarray(z, dtype=float),
@@ -119,7 +152,12 @@ class Factor:
         )
 
     def derivative(self, z: FloatArray) -> FloatArray:
-        """Derivative of :meth:`value` with respect to ``z`` (almost everywhere for kinks)."""
+        """Derivative of :meth:`value` with respect to ``z`` (almost everywhere for kinks).
+
+        For a hysteresis operator: with respect to the current sample of ``z``, the past held.
+        """
+        if self.stateful:
+            return _run_stateful(self.fn, np.asarray(z, dtype=float), self.param, self.param2)[1]
         return _apply(
             _FN_CODES[self.fn],
             np.asarray(z, dtype=float),
@@ -142,6 +180,7 @@ class Factor:
             ("scale", 1.0),
             ("offset", 0.0),
             ("param", 0.0),
+            ("param2", 0.0),
         ):
             val = getattr(self, key)
             if val != default:
@@ -188,6 +227,11 @@ class Term:
         """Names of the signals this term reads."""
         return {f.signal for f in self.factors}
 
+    @property
+    def stateful(self) -> bool:
+        """Whether a factor is a hysteresis operator (its value has a memory)."""
+        return any(f.stateful for f in self.factors)
+
     def evaluate(self, get: Getter, shape: tuple[int, ...] = ()) -> FloatArray:
         """Evaluate the product; ``shape`` is used for the constant term."""
         out: FloatArray | float = 1.0
@@ -230,7 +274,7 @@ def term_matrix(terms: Sequence[Term], get: Getter, n: int) -> FloatArray:
     return out
 
 
-_FACTOR_KEYS = {"signal", "fn", "power", "lag", "diff", "scale", "offset", "param"}
+_FACTOR_KEYS = {"signal", "fn", "power", "lag", "diff", "scale", "offset", "param", "param2"}
 #: Bounds on a factor read from a file: lags as a delay's (100,000 samples), powers to 64.
 MAX_TERM_LAG = 100_000
 MAX_POWER = 64
@@ -275,13 +319,18 @@ def factor_from_dict(data: Any, where: str, problems: list[str]) -> Factor | Non
         else:
             ints[key] = val
     floats: dict[str, float] = {}
-    for key, fdefault in (("scale", 1.0), ("offset", 0.0), ("param", 0.0)):
+    for key, fdefault in (("scale", 1.0), ("offset", 0.0), ("param", 0.0), ("param2", 0.0)):
         val = data.get(key, fdefault)
         if isinstance(val, bool) or not isinstance(val, int | float) or not _finite(val):
             problems.append(f"{where}.{key}: expected a finite number, found {val!r}.")
             ok = False
         else:
             floats[key] = float(val)
+    if ok and fn == "play" and floats["param"] < 0:
+        problems.append(
+            f"{where}.param: a play's half-width must be >= 0, found {floats['param']!r}."
+        )
+        ok = False
     if not ok:
         return None
     return Factor(signal=signal, fn=fn, **ints, **floats)  # type: ignore[arg-type]
@@ -331,6 +380,7 @@ class CompiledTerms:
         self._scale = np.ones((nt, mf))
         self._offset = np.zeros((nt, mf))
         self._param = np.zeros((nt, mf))
+        self._param2 = np.zeros((nt, mf))
         for i, t in enumerate(self.terms):
             for j, f in enumerate(t.factors):
                 self._cur[i, j] = index[(f.signal, f.lag)]
@@ -343,9 +393,59 @@ class CompiledTerms:
                 self._scale[i, j] = f.scale
                 self._offset[i, j] = f.offset
                 self._param[i, j] = f.param
+                self._param2[i, j] = f.param2
+        stateful_codes = [_FN_CODES[name] for name in STATEFUL]
         self._groups = {
-            code: np.nonzero(self._code == code) for code in np.unique(self._code) if code >= 0
+            code: np.nonzero(self._code == code)
+            for code in np.unique(self._code)
+            if code >= 0 and code not in stateful_codes
         }
+        #: (term, factor) positions of the hysteresis operators, and their function names
+        self._memory = [
+            (i, j, t.factors[j].fn)
+            for i, t in enumerate(self.terms)
+            for j in range(len(t.factors))
+            if t.factors[j].stateful
+        ]
+        self.reset()
+
+    @property
+    def stateful(self) -> bool:
+        """Whether a term holds a hysteresis operator (:data:`STATEFUL`)."""
+        return bool(self._memory)
+
+    def reset(self) -> None:
+        """Forget the hysteresis operators' past: the next step is their first.
+
+        :attr:`state`, shape ``(n_terms, max factors, 2)``, holds every operator's state
+        (NaN before its first step); saving and restoring it resumes a simulation exactly.
+        """
+        self.state = np.full((len(self.terms), self._cur.shape[1], 2), np.nan)
+
+    def _memory_values(
+        self, z: FloatArray, out: FloatArray, der: FloatArray | None, commit: bool
+    ) -> None:
+        """Fill the hysteresis operators' entries of ``out`` (and ``der``) in place.
+
+        One step (``z`` of shape ``(nt, mf)``) continues from the held state, which is
+        advanced when ``commit``; a record (``(nt, mf, n)``) runs from its first sample.
+        """
+        if z.ndim > 3:
+            raise SchemaError(
+                "Hysteresis operators (play, bouc_wen) are evaluated one step or one record at "
+                f"a time, not on a batch of shape {z.shape[2:]}."
+            )
+        for i, j, fn in self._memory:
+            p, p2 = float(self._param[i, j]), float(self._param2[i, j])
+            if z.ndim == 2:
+                v, d, new = _step_stateful(fn, float(z[i, j]), self.state[i, j], p, p2)
+                if commit:
+                    self.state[i, j] = new
+            else:
+                v, d = _run_stateful(fn, z[i, j], p, p2)  # type: ignore[assignment]
+            out[i, j] = v
+            if der is not None:
+                der[i, j] = d
 
     @property
     def n_terms(self) -> int:
@@ -358,8 +458,13 @@ class CompiledTerms:
             z = z - np.where(_expand(self._hasdiff, z), values[self._prev], 0.0)
         return (z - _expand(self._offset, z)) * _expand(self._scale, z)
 
-    def evaluate(self, values: FloatArray) -> FloatArray:
-        """Term values, shape ``(n_terms, *batch)``."""
+    def evaluate(self, values: FloatArray, commit: bool = True) -> FloatArray:
+        """Term values, shape ``(n_terms, *batch)``.
+
+        With hysteresis operators (:attr:`stateful`) ``values`` is one time step (shape
+        ``(n_keys,)``; the operators' state advances unless ``commit`` is false) or one whole
+        record (``(n_keys, n)``, run from its first sample; the held state is not used).
+        """
         values = np.asarray(values, dtype=float)
         batch = values.shape[1:]
         if self.n_terms == 0:
@@ -370,6 +475,8 @@ class CompiledTerms:
         out = np.ones_like(z)
         for code, idx in self._groups.items():
             out[idx] = _apply(code, z[idx], self._power[idx], self._param[idx], deriv=False)
+        if self._memory:
+            self._memory_values(z, out, None, commit)
         return np.prod(out, axis=1)
 
     def jacobian(self, values: FloatArray) -> FloatArray:
@@ -391,6 +498,8 @@ class CompiledTerms:
         for code, idx in self._groups.items():
             val[idx] = _apply(code, z[idx], self._power[idx], self._param[idx], deriv=False)
             der[idx] = _apply(code, z[idx], self._power[idx], self._param[idx], deriv=True)
+        if self._memory:  # with respect to the current sample, the operators' past held
+            self._memory_values(z, val, der, commit=False)
         for j in range(mf):
             others = (
                 np.prod(np.delete(val, j, axis=1), axis=1) if mf > 1 else np.ones_like(val[:, 0])
@@ -402,6 +511,43 @@ class CompiledTerms:
                 if self._hasdiff[r, j]:
                     jac[r, self._prev[r, j]] -= d[r]
         return jac
+
+
+def _step_stateful(
+    fn: str, z: float, state: Sequence[float], param: float, param2: float
+) -> tuple[float, float, tuple[float, float]]:
+    """One sample of a hysteresis operator: ``(value, d value / d z, new state)``.
+
+    The state is two numbers, NaN before the first sample: the play's output (and nothing),
+    or the Bouc-Wen operator's previous ``z`` and its ``h``.
+    """
+    z, a, b = float(z), float(state[0]), float(state[1])
+    if fn == "play":
+        if math.isnan(a):
+            return z, 1.0, (z, 0.0)
+        p = min(max(a, z - param), z + param)
+        return p, float(p != a), (p, 0.0)
+    if math.isnan(a):  # bouc_wen: starts from h = 0
+        return 0.0, 1.0, (z, 0.0)
+    d = z - a
+    h = b + d - param * abs(d) * b - param2 * d * abs(b)
+    sd = 1.0 if d > 0 else (-1.0 if d < 0 else 0.0)
+    return h, 1.0 - param * sd * b - param2 * abs(b), (z, h)
+
+
+def _run_stateful(
+    fn: str, z: FloatArray, param: float, param2: float
+) -> tuple[FloatArray, FloatArray]:
+    """A hysteresis operator run along the first axis of ``z``: values and derivatives."""
+    flat = z.reshape(z.shape[0], -1)
+    val, der = np.empty_like(flat), np.empty_like(flat)
+    for c in range(flat.shape[1]):
+        state: tuple[float, float] = (math.nan, math.nan)
+        for k in range(flat.shape[0]):
+            val[k, c], der[k, c], state = _step_stateful(
+                fn, float(flat[k, c]), state, param, param2
+            )
+    return val.reshape(z.shape), der.reshape(z.shape)
 
 
 def _expand(a: FloatArray, like: FloatArray) -> FloatArray:
@@ -437,20 +583,29 @@ def _apply(
     raise SchemaError(f"Unknown factor function {fn!r}.")  # pragma: no cover
 
 
-def scalar_evaluator(ct: CompiledTerms) -> Callable[[Sequence[float]], list[float]]:
+def scalar_evaluator(ct: CompiledTerms) -> Callable[..., list[float]]:
     """A pure-Python evaluator for one time step: ``f(values) -> term values``.
 
     ``values`` lists the current value of every key of ``ct`` (same order as ``ct.keys``).
+    Hysteresis operators keep their state in ``ct.state`` (``ct.reset()`` starts them again).
     For the few terms of an extended model this is several times faster per step than the
     vectorised :meth:`CompiledTerms.evaluate`, which pays numpy's call overhead.
     """
 
     spec = []
+    slot = 0
+    where: list[tuple[int, int]] = []  # the operators' places in ct.state
     for i, t in enumerate(ct.terms):
         factors = []
         for j, f in enumerate(t.factors):
             prev = int(ct._prev[i, j]) if ct._hasdiff[i, j] else -1
-            factors.append((int(ct._cur[i, j]), prev, f.fn, f.power, f.scale, f.offset, f.param))
+            mem = -1
+            if f.stateful:
+                mem, slot = slot, slot + 1
+                where.append((i, j))
+            factors.append(
+                (int(ct._cur[i, j]), prev, f.fn, f.power, f.scale, f.offset, f.param, f.param2, mem)
+            )
         spec.append(tuple(factors))
 
     def value(fn: str, z: float, power: int, param: float) -> float:
@@ -472,13 +627,21 @@ def scalar_evaluator(ct: CompiledTerms) -> Callable[[Sequence[float]], list[floa
             return min(max(z, -param), param)
         return max(z - param, 0.0)  # relu
 
-    def evaluate(v: Sequence[float]) -> list[float]:
+    def evaluate(v: Sequence[float], commit: bool = True) -> list[float]:
+        """Term values for one step; hysteresis operators advance unless ``commit`` is false."""
         out = []
         for factors in spec:
             prod = 1.0
-            for cur, prev, fn, power, scale, offset, param in factors:
+            for cur, prev, fn, power, scale, offset, param, param2, mem in factors:
                 z = v[cur] - v[prev] if prev >= 0 else v[cur]
-                prod *= value(fn, (z - offset) * scale, power, param)
+                if mem >= 0:
+                    st = ct.state[where[mem]]
+                    val, _, new = _step_stateful(fn, (z - offset) * scale, st, param, param2)
+                    if commit:
+                        st[:] = new
+                    prod *= val
+                else:
+                    prod *= value(fn, (z - offset) * scale, power, param)
             out.append(prod)
         return out
 

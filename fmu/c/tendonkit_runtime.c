@@ -133,7 +133,7 @@ int tk_load(tk_model *m, const char *path, char *why, size_t nwhy) {
     /* every array below must be far from int and memory limits: a resource asking for more
      * is corrupt (this also keeps the int offsets of the state layout from overflowing) */
     if ((double)m->H * (m->nu + m->ny + m->nx) + (double)m->nx * (m->nx + m->nu + m->nt) +
-            (double)m->ny * (m->nx + m->nu) + 9.0 * m->nf + (double)m->nt * (m->ny + 1) >
+            (double)m->ny * (m->nx + m->nu) + 12.0 * m->nf + (double)m->nt * (m->ny + 1) >
         MAX_VALUES)
         goto bad;
 
@@ -141,7 +141,7 @@ int tk_load(tk_model *m, const char *path, char *why, size_t nwhy) {
            + (size_t)m->nx * m->nx + (size_t)m->nx * m->nu + (size_t)m->ny * m->nx
            + (size_t)m->ny * m->nu + (size_t)m->nx + (size_t)m->nx * m->nt /* A B C D x0 E */
            + (size_t)m->nt * m->nx                                       /* coef */
-           + 4 * (size_t)m->nf                                           /* power..param */
+           + 5 * (size_t)m->nf                                          /* power..param2 */
            + (size_t)m->nu + (size_t)m->ny + (size_t)m->nt + (size_t)m->nx; /* ub yraw theta xn */
     m->store = (double *)calloc(need + 1, sizeof(double));
     m->bi = (tk_block *)calloc((size_t)m->nbi + 1, sizeof(tk_block));
@@ -167,6 +167,7 @@ int tk_load(tk_model *m, const char *path, char *why, size_t nwhy) {
         m->scale = p; p += m->nf;
         m->offset = p; p += m->nf;
         m->param = p; p += m->nf;
+        m->param2 = p; p += m->nf;
         m->ub = p; p += m->nu;
         m->yraw = p; p += m->ny;
         m->theta = p; p += m->nt;
@@ -197,11 +198,12 @@ int tk_load(tk_model *m, const char *path, char *why, size_t nwhy) {
         m->col[k] = next_int(&r, 0, LIMIT);
         m->flag[k] = next_int(&r, 0, m->lag);
         m->fdiff[k] = next_int(&r, 0, m->lag);
-        m->code[k] = next_int(&r, 0, 8);
+        m->code[k] = next_int(&r, 0, 10);
         m->power[k] = next(&r);
         m->scale[k] = next(&r);
         m->offset[k] = next(&r);
         m->param[k] = next(&r);
+        m->param2[k] = next(&r);
         if (m->flag[k] + m->fdiff[k] > m->lag) r.bad = 1;
     }
     if (r.bad) goto bad;
@@ -279,6 +281,7 @@ int tk_load(tk_model *m, const char *path, char *why, size_t nwhy) {
     i += nbi_state;
     m->s_u = i; i += m->nu;
     m->s_ratio = i; i += 4;
+    m->s_fs = i; i += 2 * m->nf;
     m->ns = i;
     m->S = (double *)calloc((size_t)m->ns, sizeof(double));
     if (!m->S) {
@@ -325,6 +328,7 @@ void tk_reset(tk_model *m) {
     for (k = 0; k < m->nx; k++) m->S[m->s_x + k] = m->x0[k];
     for (k = 0; k < m->nu; k++) m->S[m->s_u + k] = m->u0[k];
     for (k = 0; k < 4; k++) m->S[m->s_ratio + k] = m->ratio0[k];
+    for (k = 0; k < 2 * m->nf; k++) m->S[m->s_fs + k] = NAN; /* operators not started */
 }
 
 /* ------------------------------------------------------------------ blocks */
@@ -485,14 +489,38 @@ static double read(tk_model *m, int f, int back, const double *ub) {
     return m->src[f] == 0 ? hist(m, m->s_uh, m->nu, back)[c] : hist(m, m->s_yh, m->ny, back)[c];
 }
 
-static void terms(tk_model *m, const double *ub) {
+/* One step of a hysteresis operator (code 9 play, 10 Bouc-Wen; tendonkit.terms._step_stateful)
+ * from its state st (NaN: not started); the new state is written only when `commit`. */
+static double memory(int code, double z, double param, double param2, double *st, int commit) {
+    double a = st[0], h, d;
+    if (code == 9) {
+        double p = a != a ? z : pmin(pmax(a, z - param), z + param);
+        if (commit) st[0] = p;
+        return p;
+    }
+    if (a != a) {
+        if (commit) { st[0] = z; st[1] = 0.0; }
+        return 0.0;
+    }
+    d = z - a;
+    h = st[1] + d - param * fabs(d) * st[1] - param2 * d * fabs(st[1]);
+    if (commit) { st[0] = z; st[1] = h; }
+    return h;
+}
+
+static void terms(tk_model *m, const double *ub, int commit) {
     int t, f;
     for (t = 0; t < m->nt; t++) {
         double prod = 1.0;
         for (f = m->ptr[t]; f < m->ptr[t + 1]; f++) {
             double z = read(m, f, m->flag[f], ub);
             if (m->fdiff[f]) z = z - read(m, f, m->flag[f] + m->fdiff[f], ub);
-            prod *= fn(m->code[f], (z - m->offset[f]) * m->scale[f], m->power[f], m->param[f]);
+            z = (z - m->offset[f]) * m->scale[f];
+            if (m->code[f] >= 9)
+                prod *= memory(m->code[f], z, m->param[f], m->param2[f], m->S + m->s_fs + 2 * f,
+                               commit);
+            else
+                prod *= fn(m->code[f], z, m->power[f], m->param[f]);
         }
         m->theta[t] = prod;
     }
@@ -500,7 +528,7 @@ static void terms(tk_model *m, const double *ub) {
 
 /* ------------------------------------------------------------------ the representation */
 
-static void arx_output(tk_model *m, const double *ub, double *y) {
+static void arx_output(tk_model *m, const double *ub, double *y, int commit) {
     int i, j, l, w;
     size_t n = (size_t)m->ny * m->nu;
     pad(m, ub);
@@ -526,7 +554,7 @@ static void arx_output(tk_model *m, const double *ub, double *y) {
         }
     }
     if (m->nt) {
-        terms(m, ub);
+        terms(m, ub, commit);
         for (i = 0; i < m->ny; i++) {
             double acc = 0.0;
             int t;
@@ -537,7 +565,7 @@ static void arx_output(tk_model *m, const double *ub, double *y) {
 }
 
 /* Modelled outputs before the output blocks for block-processed inputs ub (NaN once dead). */
-static void raw_output(tk_model *m, const double *ub, double *y) {
+static void raw_output(tk_model *m, const double *ub, double *y, int commit) {
     int i, j;
     if (m->S[TK_DEAD] != 0.0) {
         for (i = 0; i < m->ny; i++) y[i] = NAN;
@@ -554,7 +582,7 @@ static void raw_output(tk_model *m, const double *ub, double *y) {
     } else if (m->rep == 2) {
         for (i = 0; i < m->ny; i++) y[i] = m->S[m->s_x + m->outst[i]];
     } else {
-        arx_output(m, ub, y);
+        arx_output(m, ub, y, commit);
     }
     for (i = 0; i < m->ny; i++) {
         if (!TK_FINITE(y[i])) {
@@ -572,7 +600,7 @@ static void update(tk_model *m, const double *ub, const double *y) {
         if (m->nt) {
             pad(m, ub);
             push(m, ub, y, NULL);
-            terms(m, ub);
+            terms(m, ub, 1);
         }
         for (i = 0; i < m->nx; i++) {
             double a = 0.0, b = 0.0, e = 0.0;
@@ -590,7 +618,7 @@ static void update(tk_model *m, const double *ub, const double *y) {
     } else {
         pad(m, ub);
         push(m, ub, NULL, x);
-        terms(m, ub);
+        terms(m, ub, 1);
         for (i = 0; i < m->nx; i++) {
             double acc = 0.0;
             for (t = 0; t < m->nt; t++) acc += m->theta[t] * m->coef[(size_t)t * m->nx + i];
@@ -654,7 +682,7 @@ static void finish(tk_model *m, double *y, double *out) {
 void tk_outputs(tk_model *m, double *out) {
     memcpy(m->ub, m->S + m->s_u, (size_t)m->nu * sizeof(double));
     chain(m, m->bi, m->nbi, m->ub, 0);
-    raw_output(m, m->ub, m->yraw);
+    raw_output(m, m->ub, m->yraw, 0);
     chain(m, m->bo, m->nbo, m->yraw, 0);
     finish(m, m->yraw, out);
 }
@@ -662,7 +690,7 @@ void tk_outputs(tk_model *m, double *out) {
 int tk_advance(tk_model *m) {
     memcpy(m->ub, m->S + m->s_u, (size_t)m->nu * sizeof(double));
     chain(m, m->bi, m->nbi, m->ub, 1);
-    raw_output(m, m->ub, m->yraw);
+    raw_output(m, m->ub, m->yraw, 1);
     if (m->S[TK_DEAD] == 0.0) update(m, m->ub, m->yraw);
     m->S[TK_TIME_INDEX] += 1;
     chain(m, m->bo, m->nbo, m->yraw, 1);

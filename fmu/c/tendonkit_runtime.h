@@ -26,7 +26,7 @@
 #endif
 #define TK_FINITE(x) ((x) - (x) == 0.0)
 
-#define TK_FORMAT 1.0
+#define TK_FORMAT 2.0
 #define TK_MAGIC 7318.2026 /* first number of every model.tkm */
 
 typedef struct {
@@ -51,7 +51,7 @@ typedef struct {
     double *coef;            /* sparse map: (nt, nx) */
     int *outst;              /* sparse map: output states */
     int *ptr, *src, *col, *flag, *fdiff, *code;
-    double *power, *scale, *offset, *param;
+    double *power, *scale, *offset, *param, *param2;
     int kin, iq1, iq2;
     double ratio0[4], R[6], pitch, tool;
     double *u0;              /* input start values (the operating point) */
@@ -60,6 +60,7 @@ typedef struct {
     int ns;
     double *S;
     int s_x, s_uh, s_yh, s_xh, s_blk, s_u, s_ratio;
+    int s_fs;                /* two numbers per factor: a hysteresis operator's state */
     /* ---- work arrays */
     double *ub, *yraw, *theta, *xn;
     double *store;           /* one allocation for everything above */

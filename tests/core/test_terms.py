@@ -57,3 +57,71 @@ def test_every_function_has_value_and_derivative(fn):
     f = Factor("x", fn=fn, param=0.3, power=2)
     z = np.array([-1.0, -0.1, 0.2, 1.3])
     assert np.all(np.isfinite(f.value(z))) and np.all(np.isfinite(f.derivative(z)))
+
+
+# -- hysteresis operators (play, bouc_wen): a memory carried along time ---------------------------
+
+
+def test_the_play_lags_a_triangle_by_its_half_width_and_holds_at_reversals():
+    z = np.concatenate([np.linspace(0, 1, 11), np.linspace(0.9, -1, 20), np.linspace(-0.9, 0, 10)])
+    p = Factor("x", fn="play", param=0.25).value(z)
+    assert p[0] == 0.0  # starts at the signal
+    np.testing.assert_allclose(p[10], 0.75)  # rising: z - w
+    np.testing.assert_allclose(p[11:13], 0.75)  # inside the gap after the reversal: held
+    np.testing.assert_allclose(p[30], -0.75)  # falling: z + w
+    assert np.all(np.abs(z - p) <= 0.25 + 1e-12)
+
+
+def test_the_bouc_wen_state_saturates_at_one_over_the_sum_of_its_shapes():
+    z = np.linspace(0, 20, 4001)  # loading far beyond the yield
+    h = Factor("x", fn="bouc_wen", param=0.6, param2=0.4).value(z)
+    np.testing.assert_allclose(h[-1], 1 / (0.6 + 0.4), rtol=1e-3)
+    assert h[0] == 0.0 and np.all(np.diff(h) > 0)
+    # a reversal unloads with the initial stiffness (dh/dz = 1 - a·sign(dz)·h - b·|h| = 1.2)
+    back = Factor("x", fn="bouc_wen", param=0.6, param2=0.4).value(np.r_[z, 20 - 1e-4])
+    np.testing.assert_allclose(
+        (back[-1] - back[-2]) / -1e-4, 1 + 0.6 * h[-1] - 0.4 * h[-1], rtol=1e-3
+    )
+
+
+def test_stateful_terms_step_as_they_run_along_a_record_and_peeking_does_not_advance():
+    rng = np.random.default_rng(3)
+    sig = {"x": np.cumsum(rng.normal(size=300)) * 0.1, "u": rng.normal(size=300)}
+    get = series_getter(sig)
+    terms = [
+        Term((Factor("x", fn="bouc_wen", lag=1, param=0.8, param2=-0.5, scale=2.0),)),
+        Term((Factor("x", fn="play", param=0.2, diff=0), Factor("u"))),
+        Term((Factor("x", power=2),)),
+    ]
+    ct = CompiledTerms(terms)
+    assert ct.stateful and not CompiledTerms(terms[2:]).stateful
+    vals = np.array([get(name, lag) for name, lag in ct.keys])
+    record = ct.evaluate(vals)
+    np.testing.assert_allclose(record, np.array([t.evaluate(get, (300,)) for t in terms]))
+    steps = []
+    for k in range(300):
+        peek = ct.evaluate(vals[:, k], commit=False)
+        steps.append(ct.evaluate(vals[:, k]))
+        np.testing.assert_array_equal(peek, steps[-1])
+    np.testing.assert_allclose(np.array(steps).T, record, rtol=1e-14)
+    # derivative with respect to the current sample, the operators' past held
+    jac = ct.jacobian(vals)
+    h = 1e-7
+    for i in range(len(ct.keys)):
+        dv = np.zeros_like(vals)
+        dv[i, -1] = h
+        fd = (ct.evaluate(vals + dv)[:, -1] - ct.evaluate(vals - dv)[:, -1]) / (2 * h)
+        np.testing.assert_allclose(jac[:, i, -1], fd, atol=1e-5)
+    with pytest.raises(Exception, match="one step or one record"):
+        ct.evaluate(vals.reshape(len(ct.keys), 30, 10))
+
+
+def test_hysteresis_factors_read_from_a_file_keep_their_shapes_and_are_checked():
+    from tendonkit.terms import factor_from_dict
+
+    f = Factor("y", fn="bouc_wen", lag=1, param=0.5, param2=-0.7)
+    problems: list[str] = []
+    assert factor_from_dict(f.to_dict(), "f", problems) == f and not problems
+    assert f.label == "bouc_wen(y[k-1];0.5,-0.7)"
+    assert factor_from_dict({"signal": "y", "fn": "play", "param": -1.0}, "g", problems) is None
+    assert problems == ["g.param: a play's half-width must be >= 0, found -1.0."]

@@ -72,6 +72,11 @@ class SparseMapDynamics:
         for b in model.input_blocks:
             delay[b.signal] += int(b.params["samples"])
         self.terms = CompiledTerms(rep.terms)
+        if self.terms.stateful:
+            raise OptionError(
+                f"{model.name!r} has hysteresis terms (play, bouc_wen); the nonlinear MPC "
+                "linearises memoryless terms only."
+            )
         self.coef_T = np.asarray(rep.coefficients, dtype=float).T  # (nx, n_terms)
         nx, nu = len(states), len(inputs)
         lx = max((lag for name, lag in self.terms.keys if name not in delay), default=0)

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from ._hysteresis import bouc_wen_record, play_record
 from .errors import SchemaError
 
 #: The closed set of functions a factor may apply (``z`` is the scaled, shifted signal).
@@ -539,15 +540,16 @@ def _run_stateful(
     fn: str, z: FloatArray, param: float, param2: float
 ) -> tuple[FloatArray, FloatArray]:
     """A hysteresis operator run along the first axis of ``z``: values and derivatives."""
-    flat = z.reshape(z.shape[0], -1)
+    if z.shape[0] == 0:
+        return z.copy(), z.copy()
+    flat = np.ascontiguousarray(z.reshape(z.shape[0], -1).T, dtype=float)
     val, der = np.empty_like(flat), np.empty_like(flat)
-    for c in range(flat.shape[1]):
-        state: tuple[float, float] = (math.nan, math.nan)
-        for k in range(flat.shape[0]):
-            val[k, c], der[k, c], state = _step_stateful(
-                fn, float(flat[k, c]), state, param, param2
-            )
-    return val.reshape(z.shape), der.reshape(z.shape)
+    for c in range(flat.shape[0]):  # compiled (toolkit._hysteresis): what _step_stateful does
+        if fn == "play":
+            val[c], der[c] = play_record(flat[c], float(param))
+        else:
+            val[c], der[c] = bouc_wen_record(flat[c], float(param), float(param2))
+    return val.T.reshape(z.shape), der.T.reshape(z.shape)
 
 
 def _expand(a: FloatArray, like: FloatArray) -> FloatArray:

@@ -125,3 +125,15 @@ def test_hysteresis_factors_read_from_a_file_keep_their_shapes_and_are_checked()
     assert f.label == "bouc_wen(y[k-1];0.5,-0.7)"
     assert factor_from_dict({"signal": "y", "fn": "play", "param": -1.0}, "g", problems) is None
     assert problems == ["g.param: a play's half-width must be >= 0, found -1.0."]
+
+
+def test_the_compiled_record_loops_equal_the_step_reference():
+    from tendonkit.terms import _run_stateful, _step_stateful
+
+    z = np.cumsum(np.random.default_rng(5).normal(size=500)) * 0.2
+    for fn, p, p2 in (("play", 0.3, 0.0), ("bouc_wen", 0.7, -0.4), ("bouc_wen", 0.2, 0.5)):
+        state, ref = (np.nan, np.nan), []
+        for zk in z:
+            v, d, state = _step_stateful(fn, zk, state, p, p2)
+            ref.append((v, d))
+        np.testing.assert_allclose(np.array(_run_stateful(fn, z, p, p2)).T, ref, rtol=1e-13)

@@ -502,8 +502,9 @@ class Hysteresis(_TermEffect):
     cause = "hysteresis"
     description = (
         "Hysteresis: adds a hysteresis operator of every output — a Bouc-Wen state "
-        "dh = dy - a|dy|h - b·dy|h| (a smooth loop, softening or hardening) or a play of "
-        "half-width w (elastic-perfectly-plastic) — whose memory the simulation carries."
+        "dh = dy - a|dy|h - b·dy|h| (a smooth loop, softening or hardening), a play of "
+        "half-width w (elastic-perfectly-plastic) or plays of three widths with their own "
+        "weights (Prandtl-Ishlinskii) — whose memory the simulation carries."
     )
     #: Bouc-Wen shapes ``a`` per unit of the output's standard deviation (``a = 1``: the
     #: loop's yield is reached after about one standard deviation of travel) and ``b / a``
@@ -555,6 +556,24 @@ class Hysteresis(_TermEffect):
                 for j, n in enumerate(names)
             ]
             outs.append(({"structure": "play", "half_width_in_std": w}, terms))
+        # Prandtl-Ishlinskii: the plays of every width together, each with its own weight (a
+        # loop made of straight pieces, any mix of softening and hardening)
+        terms = [
+            Term(
+                (Factor(n, fn="play", lag=1, scale=float(1 / sd[j]), offset=float(mu[j]), param=w),)
+            )
+            for w in self.play_fractions
+            for j, n in enumerate(names)
+        ]
+        outs.append(
+            (
+                {
+                    "structure": "prandtl_ishlinskii",
+                    "half_widths_in_std": list(self.play_fractions),
+                },
+                terms,
+            )
+        )
         return outs
 
     def signature(

@@ -5,8 +5,9 @@ Identifiers that regress (ARX, the extensions ``diagnose`` makes, SINDYc) minimi
 estimate is biased whenever the noise is not equation noise or the structure is only an
 approximation (Ljung, *System Identification*, 2nd ed., §7.3).  :func:`refine` re-estimates
 every continuous parameter of a model by its simulation error, starting from the model as
-given, with :func:`scipy.optimize.least_squares` (trust-region, Jacobian-scaled, forward
-differences through the compiled simulation):
+given, with :func:`scipy.optimize.least_squares` (trust-region, Jacobian-scaled, through the
+compiled simulation; the Jacobian of an ARX's coefficients exact by forward sensitivities,
+:mod:`tendonkit._sensitivity`, everything else by forward differences):
 
 - ``state_space``: ``A``, ``B``, ``C``, the non-zero ``D``, the term matrix ``E``, ``u0`` and
   ``y0`` where set;
@@ -34,12 +35,14 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from ._sensitivity import arx_sensitivity
+from ._simulate_arx import arx_max_lag
 from .dataset import Dataset
 from .errors import SchemaError
 from .identification import training_fit
 from .schema import ARX, Block, Model, SparseMap, StateSpace
-from .simulate import aligned, simulate
-from .terms import Term
+from .simulate import _apply_blocks, aligned, simulate
+from .terms import CompiledTerms, Term
 
 FloatArray = NDArray[np.float64]
 
@@ -211,6 +214,7 @@ def refine(
     tol: float = 1e-6,
     initial: Literal["estimate", "model", "zero"] = "estimate",
     blocks: bool = True,
+    analytic: bool = True,
 ) -> Model:
     """Re-estimate every continuous parameter of ``model`` by its free-run simulation error.
 
@@ -229,6 +233,12 @@ def refine(
         (``"estimate"``: from the data, as the benchmarks; ``"model"`` or ``"zero"``).
     blocks : bool
         Also refine the blocks' parameters; ``False`` keeps them as the caller chose them.
+    analytic : bool
+        For an ARX model (memoryless terms, no output blocks, no clipped-state terms, initial
+        state from the data): the Jacobian of the coefficients by forward sensitivities
+        (:mod:`tendonkit._sensitivity`, exact, one pass), the blocks' parameters by forward
+        differences.  ``False``, and every other model: forward differences throughout (one
+        simulation per parameter).
 
     Returns
     -------
@@ -267,8 +277,13 @@ def refine(
     cost0 = float(r0 @ r0)
     if not np.isfinite(cost0):
         return model
+    jac: Any = "2-point"
+    if analytic and _arx_sensitivity_applies(model, initial):
+        jac = _arx_jacobian(model, data, decode, residuals, scale)
     with np.errstate(all="ignore"):  # trial steps may diverge; the optimiser steps back
-        sol = least_squares(residuals, theta0, x_scale="jac", ftol=tol, xtol=tol, max_nfev=max_nfev)
+        sol = least_squares(
+            residuals, theta0, jac=jac, x_scale="jac", ftol=tol, xtol=tol, max_nfev=max_nfev
+        )
     cost = float(sol.fun @ sol.fun)
     if not np.isfinite(cost) or not cost < cost0:
         return model
@@ -282,3 +297,115 @@ def refine(
     notes = "; ".join(x for x in (prov.notes, note) if x)
     fit = training_fit(refined, data) if prov.training_fit else prov.training_fit
     return refined.replace(provenance=dataclasses.replace(prov, notes=notes, training_fit=fit))
+
+
+def _arx_sensitivity_applies(model: Model, initial: str) -> bool:
+    rep = model.representation
+    return (
+        isinstance(rep, ARX)
+        and initial == "estimate"
+        and not model.output_blocks
+        and not any(t.stateful for t in rep.terms)
+        and not tied_terms(rep, model.output_names)
+    )
+
+
+def _arx_jacobian(
+    model: Model,
+    data: Dataset,
+    decode: Callable[[FloatArray], Model],
+    residuals: Callable[[FloatArray], FloatArray],
+    scale: FloatArray,
+) -> Callable[[FloatArray], FloatArray]:
+    """The Jacobian of :func:`refine`'s residuals for an ARX model (see ``analytic``).
+
+    The coefficients come first in the parameter vector (``_codec``: ``A``, the non-zero
+    ``B``, the offset, the term coefficients), the blocks' parameters after them.
+    """
+    rep0 = model.representation
+    assert isinstance(rep0, ARX)
+    masks_b = [np.asarray(b) != 0 for b in rep0.B]
+    n_lin = (
+        sum(a.size for a in rep0.A)
+        + sum(int(m.sum()) for m in masks_b)
+        + (0 if rep0.offset is None else rep0.offset.size)
+        + (0 if rep0.term_coefficients is None else rep0.term_coefficients.size)
+    )
+    outputs, inputs = list(model.output_names), list(model.input_names)
+
+    def jac(theta: FloatArray) -> FloatArray:
+        m = decode(theta)
+        rep = m.representation
+        assert isinstance(rep, ARX)
+        ny, nu = len(outputs), len(inputs)
+        blocks: list[FloatArray] = []
+        with np.errstate(all="ignore"):
+            for e in data.experiments:
+                ub = _apply_blocks(m.input_blocks, m.input_names, e.u, True)
+                ys = simulate(m, e.u, y=e.y, initial="estimate")
+                N, L = e.u.shape[0], arx_max_lag(rep, nu)
+                start = min(L, N)
+                Up = np.vstack([np.repeat(ub[:1], L, axis=0), ub])
+                Yp = np.vstack([np.repeat(e.y[:1], L, axis=0), ys])
+                ks = np.arange(N) + L
+                cols: list[FloatArray] = []  # (N, ny) per parameter, codec order
+                for w, a in enumerate(rep.A):
+                    for i, j in np.ndindex(a.shape):
+                        c = np.zeros((N, ny))
+                        c[:, i] = -Yp[ks - 1 - w, j]
+                        cols.append(c)
+                for lag, mask in enumerate(masks_b):
+                    for i, j in zip(*np.nonzero(mask), strict=True):
+                        c = np.zeros((N, ny))
+                        c[:, i] = Up[ks - lag - rep.nk[j], j]
+                        cols.append(c)
+                if rep.offset is not None:
+                    for i in range(ny):
+                        c = np.zeros((N, ny))
+                        c[:, i] = 1.0
+                        cols.append(c)
+                nt = len(rep.terms)
+                J = np.zeros((nt, 0, N))
+                qcol = np.zeros(0, dtype=np.int64)
+                qlag = np.zeros(0, dtype=np.int64)
+                coef = (
+                    np.zeros((nt, ny)) if rep.term_coefficients is None else rep.term_coefficients
+                )
+                if nt and rep.term_coefficients is not None:
+                    ct = CompiledTerms(rep.terms)
+                    src = {n: (Up, j) for j, n in enumerate(inputs)}
+                    src.update({n: (Yp, j) for j, n in enumerate(outputs)})
+                    values = np.array([src[n][0][ks - lag, src[n][1]] for n, lag in ct.keys])
+                    values = values.reshape(len(ct.keys), N)
+                    theta_t = np.broadcast_to(ct.evaluate(values), (nt, N))  # constants: (nt,)
+                    for t in range(nt):
+                        for i in range(ny):
+                            c = np.zeros((N, ny))
+                            c[:, i] = theta_t[t]
+                            cols.append(c)
+                    qs = [q for q, (n, _) in enumerate(ct.keys) if n in outputs]
+                    if qs:
+                        J = np.ascontiguousarray(ct.jacobian(values)[:, qs, :])
+                    qcol = np.array([outputs.index(ct.keys[q][0]) for q in qs], dtype=np.int64)
+                    qlag = np.array([ct.keys[q][1] for q in qs], dtype=np.int64)
+                Phi = np.stack(cols, axis=2) if cols else np.zeros((N, ny, 0))
+                Phi[:start] = 0.0  # the measured history does not depend on the parameters
+                A = np.array(rep.A).reshape(len(rep.A), ny, ny) if rep.A else np.zeros((0, ny, ny))
+                S = arx_sensitivity(
+                    np.ascontiguousarray(Phi), A, np.ascontiguousarray(coef, dtype=float),
+                    J, qcol, qlag, start, L,
+                )  # fmt: skip
+                blocks.append((-S[L:] / scale[None, :, None]).reshape(N * ny, -1))
+        out = np.vstack(blocks)
+        if theta.size > n_lin:  # the blocks' parameters: forward differences
+            r0 = residuals(theta)
+            extra = np.empty((out.shape[0], theta.size - n_lin))
+            for col, p in enumerate(range(n_lin, theta.size)):
+                h = 1.4901161193847656e-08 * max(1.0, abs(float(theta[p])))
+                step = theta.copy()
+                step[p] += h
+                extra[:, col] = (residuals(step) - r0) / h
+            out = np.hstack([out, extra])
+        return np.where(np.isfinite(out), out, 0.0)
+
+    return jac

@@ -7,6 +7,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 from tendonkit.dataset import write_csv
 
@@ -47,10 +48,21 @@ def test_diagnose_writes_json_model_and_report(tmp_path):
         str(out),
         "--report",
         str(tmp_path / "out"),
+        "--versus",
+        "pem",
     )
     assert r.returncode == 0, r.stderr
     d = json.loads(out.read_text())
     assert d["cause"] == "nonlinear_stiffness"
+    # measured against the best linear model too (pem, default options): the cubic beats it
+    v = d["versus"]
+    assert v["method"] == "pem" and v["fit"] > d["baseline"]["fit"] - 5
+    assert (
+        v["extended_gain"] == pytest.approx(d["extended"]["fit"] - v["fit"])
+        and v["extended_gain"] > 5
+    )
+    assert set(v["rmse_per_output"]) == {"pos"}
+    assert f"against pem (default options, same data): fit {v['fit']:.2f} %" in r.stdout
     assert d["extended"]["fit"] > d["baseline"]["fit"] + 10
     for key in ("method", "fit"):
         assert key in d["baseline"]
@@ -61,6 +73,7 @@ def test_diagnose_writes_json_model_and_report(tmp_path):
     assert model["representation"]["terms"]  # the extension is in the saved model
     index = (tmp_path / "out" / "index.html").read_text()
     assert "nonlinear_stiffness" in index and index.count("<img") >= 3
+    assert "Against pem (default options" in index
 
 
 def test_diagnose_bad_input_is_one_message(tmp_path):
@@ -77,9 +90,12 @@ def test_diagnose_bad_input_is_one_message(tmp_path):
         "nosuch",
         "--effects",
         "gremlins",
+        "--versus",
+        "nothing",
     )
     assert r.returncode == 2 and "Traceback" not in r.stderr
     for text in (
+        "--versus: unknown identifier 'nothing'",
         "unknown method 'nosuch'",
         "unknown effect 'gremlins'",
         "does not exist",

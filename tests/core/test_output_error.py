@@ -68,3 +68,43 @@ def test_a_model_at_its_optimum_is_returned_unchanged() -> None:
     u = rng.normal(size=(500, 1))
     data = tk.Dataset.from_arrays(u, tk.simulate(truth, u, initial="zero"), 0.01, ["u"], ["y"])
     assert refine(truth, data) is truth
+
+
+def test_the_arx_sensitivity_jacobian_equals_finite_differences() -> None:
+    """The exact Jacobian of an ARX's simulation error (forward sensitivities through the
+    linearised recursion, ``refine(analytic=True)``) against central differences, on random
+    ARX models with terms of past outputs and inputs, bilinear gains and input blocks."""
+    from random_models import random_model
+    from scipy.optimize._numdiff import approx_derivative
+
+    from tendonkit.dataset import Dataset, Experiment
+    from tendonkit.output_error import _arx_jacobian, _arx_sensitivity_applies, _codec
+    from tendonkit.simulate import aligned, simulate
+
+    checked = 0
+    for kind in ("arx_linear", "arx_terms", "arx_bilinear"):
+        for seed in range(12):
+            m = random_model(seed, kind, 1.0).replace(output_blocks=())
+            if not _arx_sensitivity_applies(m, "estimate"):
+                continue
+            rng = np.random.default_rng(seed)
+            u = rng.normal(0, 1, (200, len(m.inputs))).cumsum(0) * 0.1
+            y = simulate(m, u, initial="zero") + rng.normal(0, 0.1, (200, len(m.outputs)))
+            exp = Experiment(t=m.dt * np.arange(200), u=u, y=y, name="a")
+            data = aligned(m, Dataset(m.input_names, m.output_names, (exp,), m.dt))
+            theta0, decode = _codec(m, True)
+            scale = np.std(data.y, axis=0)
+
+            def res(th, decode=decode, data=data, scale=scale):  # type: ignore[no-untyped-def]
+                mm = decode(th)
+                e = data.experiments[0]
+                return ((e.y - simulate(mm, e.u, y=e.y, initial="estimate")) / scale).ravel()
+
+            r0 = res(theta0)
+            if not np.all(np.isfinite(r0)) or np.abs(r0).max() > 1e3:
+                continue  # a diverging draw: no derivative to compare
+            exact = _arx_jacobian(m, data, decode, res, scale)(theta0)
+            fd = approx_derivative(res, theta0, method="3-point")
+            assert np.abs(exact - fd).max() <= 1e-5 * np.abs(fd).max(), (kind, seed)
+            checked += 1
+    assert checked >= 20

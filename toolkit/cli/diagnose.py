@@ -13,6 +13,7 @@ from ..diagnose.findings import evidence_notes
 from ..diagnose.report import write_report
 from ..errors import DataError
 from ..manager import effects
+from ..manager import identifiers as identifier_registry
 from .common import (
     atomic_write,
     check_output_dir,
@@ -74,6 +75,12 @@ def add_commands(sub: Any) -> None:
         help="worker processes trying the effects (default 1; worth it on long records only, "
         "docs/campaigns.md)",
     )
+    p.add_argument(
+        "--versus",
+        metavar="METHOD",
+        help="also identify METHOD with its default options on the training data and measure "
+        "the final model against it (e.g. pem, the best linear model; costs its identification)",
+    )
     p.add_argument("--seed", type=seed_argument, default=0, help="seed for every random choice")
     p.add_argument(
         "--no-fallback",
@@ -99,6 +106,11 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     inputs, outputs, options, _ = identifier_arguments(args, problems)
     method = "auto" if auto else args.method
     chosen = split_names(args.effects) if args.effects is not None else None
+    if args.versus is not None and args.versus not in identifier_registry().names():
+        problems.append(
+            f"--versus: unknown identifier {args.versus!r}; registered: "
+            f"{', '.join(identifier_registry().names())}."
+        )
     if args.effects is not None and not chosen:
         problems.append(f"--effects {args.effects!r} names no effect.")
     if chosen:
@@ -144,6 +156,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
             max_causes=args.max_causes,
             refine=not args.no_refine,
             jobs=args.jobs,
+            versus=args.versus,
         )
         model_path = args.model or (
             str(Path(args.report) / "extended_model.json") if args.report else None
@@ -230,6 +243,16 @@ def render_diagnosis(summary: dict[str, Any]) -> str:
             "validation RMSE (output units): "
             + ", ".join(f"{n} {before[n]:.4g} -> {after[n]:.4g}" for n in after if n in before)
         )
+    versus = summary.get("versus")
+    if versus and "fit" in versus:
+        rmse = versus.get("rmse_per_output") or {}
+        lines.append(
+            f"against {versus['method']} (default options, same data): fit {versus['fit']:.2f} % "
+            f"-> final model {ext['fit']:.2f} % (gain {versus['extended_gain']:+.2f} points)"
+            + (f"; its RMSE {', '.join(f'{n} {v:.4g}' for n, v in rmse.items())}" if rmse else "")
+        )
+    elif versus:
+        lines.append(f"against {versus['method']}: not identified ({versus.get('error')})")
     if summary.get("margin_to_runner_up") is not None:
         lines.append(f"margin to runner-up: {summary['margin_to_runner_up']:.2f} points")
     lines.extend(f"note: {n}" for n in evidence_notes(summary))

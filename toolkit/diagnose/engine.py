@@ -121,6 +121,7 @@ def diagnose(
     max_causes: int = 3,
     refine: bool = True,
     jobs: int = 1,
+    versus: str | None = None,
 ) -> Diagnosis:
     """Diagnose what the baseline model gets wrong on ``valid`` (see the module docstring).
 
@@ -188,6 +189,11 @@ def diagnose(
     from tqdm import tqdm
 
     registry = effect_registry()
+    if versus is not None and versus not in identifiers().names():
+        raise OptionError(
+            "diagnose cannot run:",
+            [f"versus: unknown identifier {versus!r}; registered: {identifiers().names()}."],
+        )
     settings = Settings(
         alpha=alpha,
         min_relative_gain=min_relative_gain,
@@ -237,8 +243,37 @@ def diagnose(
     steps = continue_sequence(
         diagnosis, trials, registry, train, valid, settings, bar, base.identifier
     )
+    if steps:
+        diagnosis = dataclasses.replace(diagnosis, steps=steps)
+    if versus is not None:
+        bar.set_description(f"diagnose: {versus} for comparison")
+        diagnosis = dataclasses.replace(diagnosis, versus=versus_reference(versus, train, valid))
     bar.close()
-    return dataclasses.replace(diagnosis, steps=steps) if steps else diagnosis
+    return diagnosis
+
+
+def versus_reference(method: str, train: Dataset, valid: Dataset) -> dict[str, Any]:
+    """Another model to measure the final one against (``diagnose(versus=...)``).
+
+    ``method`` with its default options on the training data (``"pem"``: the best linear
+    model of docs/identification.md), scored on the validation data as the baseline is.
+    """
+    try:
+        model = identifiers().get(method).create().identify(train)
+        fits = {n: float(v) for n, v in zip(model.output_names, fit(*_sim_pair(model, valid)))}
+    except (TendonkitError, np.linalg.LinAlgError, ValueError) as exc:  # the diagnosis stands
+        return {"method": method, "error": f"{type(exc).__name__}: {exc}"}
+    return {
+        "method": method,
+        "fit_per_output": fits,
+        "fit": _mean(fits),
+        "notes": model.provenance.notes,
+    }
+
+
+def _sim_pair(model: Model, valid: Dataset) -> tuple[FloatArray, FloatArray]:
+    data = aligned(model, valid)
+    return data.y, simulate_all(model, valid)
 
 
 # -- the stages -----------------------------------------------------------------------------------

@@ -210,6 +210,21 @@ class Diagnosis:
     #: Standard deviation of each validation output: the RMSE of a fit ``f`` is
     #: ``(1 - f / 100) · std`` (:meth:`rmse`), in the output's unit.
     output_std: dict[str, float] = field(default_factory=dict)
+    #: Another model measured on the same validation data (``diagnose(versus="pem")``: the best
+    #: linear model): method, ``fit``, ``fit_per_output`` and its notes; None when not asked.
+    versus: dict[str, Any] | None = None
+
+    def _versus(self) -> dict[str, Any] | None:
+        if self.versus is None:
+            return None
+        v = self.versus
+        if "fit" not in v:
+            return dict(v)
+        return {
+            **v,
+            "rmse_per_output": self.rmse(v["fit_per_output"]),
+            "extended_gain": _mean(self.extended_fit) - v["fit"],
+        }
 
     def rmse(self, fits: dict[str, float]) -> dict[str, float]:
         """Validation RMSE per output, in the output's unit, of a model with these fits."""
@@ -286,6 +301,7 @@ class Diagnosis:
                 "params": best.params if best else {},
                 "model": model_path,
             },
+            "versus": self._versus(),
             "sequence": [s.to_dict() for s in self.steps],
             "named_effect": best.effect if best else None,
             "margin_to_runner_up": self.margin,

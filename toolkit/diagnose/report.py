@@ -102,6 +102,15 @@ def write_report(
             + ", ".join(d["causes"])
             + "."
         )
+    v = d.get("versus")
+    if v and "fit" in v:
+        rep.text(
+            f"Against {v['method']} (default options, the same training and validation data): "
+            f"fit {v['fit']:.2f} % -> final model {d['extended']['fit']:.2f} % "
+            f"(gain {v['extended_gain']:+.2f} points)."
+        )
+    elif v:
+        rep.text(f"Against {v['method']}: not identified ({v.get('error')}).")
     rep.heading("Ranking of candidate causes (validation data)")
     rows = [
         [

@@ -852,12 +852,31 @@ def adjust(trials: Sequence[Trial], settings: Settings) -> list[Finding]:
         Finding(
             **{k: getattr(t, k) for k in keep if hasattr(t, k)},
             p_adjusted=p_adj,
-            significant=bool(p_adj < settings.alpha and t.gain > 0 and t.gain >= settings.min_gain),
+            significant=bool(
+                p_adj < settings.alpha
+                and t.gain > 0
+                and (t.gain >= settings.min_gain or _seen_directly(t))
+            ),
         )
         for t, p_adj in zip(trials, adjusted)
     ]
     findings.sort(key=lambda f: f.gain, reverse=True)
     return findings
+
+
+def _seen_directly(t: Trial) -> bool:
+    """Whether the finding's evidence is its direct test (the smallest p-value of its routes).
+
+    ``min_gain`` is a floor on effects inferred from a better fit: such structure can be real
+    but trivial (a detail of the sampling).  A cause seen in the data — a clipped output whose
+    samples pile up at the clip level while the model moves — is not inferred from the fit,
+    so a small positive gain (a clip acts on few samples) does not hide it.
+    """
+    direct = t.test.get("direct")
+    if not direct:
+        return False
+    routes = [t.test.get("p_value", 1.0), (t.test.get("prediction") or {}).get("p_value", 1.0)]
+    return bool(direct["p_value"] <= min(routes))
 
 
 def conclude(

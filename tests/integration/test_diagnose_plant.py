@@ -271,4 +271,10 @@ def test_two_effects_are_both_named(pair, seed):
     print(f"{'+'.join(pair)} seed {seed} {params}: causes {d.causes}; {chain}")
     assert {EXPECTED[pair[0]], EXPECTED[pair[1]]} <= set(d.causes), chain
     assert all(s.gain > 0 for s in d.steps if s.cause != "none")
-    assert "refined by simulation error" in d.extended.provenance.notes
+    # the final step was refined, or refining was checked on held-out training data and
+    # refused (it made the held-out part worse): either way the model says which
+    notes = d.extended.provenance.notes
+    assert (
+        "refined by simulation error: normalised RMS" in notes
+        or "not refined by simulation error: refined on the first 75% of the training" in notes
+    ), notes

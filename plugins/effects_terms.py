@@ -518,62 +518,29 @@ class Hysteresis(_TermEffect):
         y = ctx.train.y
         mu = y.mean(axis=0)
         sd = np.where(y.std(axis=0) > 0, y.std(axis=0), 1.0)
-        names = ctx.train.outputs
-        outs: list[tuple[dict[str, Any], list[Term]]] = []
-        for a in self.bouc_wen_a:
-            for ratio in self.bouc_wen_ratio:
-                terms = [
-                    Term(
-                        (
-                            Factor(
-                                n,
-                                fn="bouc_wen",
-                                lag=1,
-                                scale=float(1 / sd[j]),
-                                offset=float(mu[j]),
-                                param=a,
-                                param2=a * ratio,
-                            ),
-                        )
-                    )
-                    for j, n in enumerate(names)
-                ]
-                outs.append(({"structure": "bouc_wen", "a": a, "b": a * ratio}, terms))
-        for w in self.play_fractions:
-            terms = [
-                Term(
-                    (
-                        Factor(
-                            n,
-                            fn="play",
-                            lag=1,
-                            scale=float(1 / sd[j]),
-                            offset=float(mu[j]),
-                            param=w,
-                        ),
-                    )
-                )
-                for j, n in enumerate(names)
-            ]
-            outs.append(({"structure": "play", "half_width_in_std": w}, terms))
+
+        def operator(fn: str, param: float, param2: float = 0.0) -> list[Term]:
+            """The operator on every output's past sample, normalised by its mean and std."""
+            return [
+                Term((Factor(n, fn=fn, lag=1, scale=float(1 / sd[j]), offset=float(mu[j]),
+                             param=param, param2=param2),))
+                for j, n in enumerate(ctx.train.outputs)
+            ]  # fmt: skip
+
+        outs: list[tuple[dict[str, Any], list[Term]]] = [
+            ({"structure": "bouc_wen", "a": a, "b": a * r}, operator("bouc_wen", a, a * r))
+            for a in self.bouc_wen_a
+            for r in self.bouc_wen_ratio
+        ]
+        outs += [
+            ({"structure": "play", "half_width_in_std": w}, operator("play", w))
+            for w in self.play_fractions
+        ]
         # Prandtl-Ishlinskii: the plays of every width together, each with its own weight (a
         # loop made of straight pieces, any mix of softening and hardening)
-        terms = [
-            Term(
-                (Factor(n, fn="play", lag=1, scale=float(1 / sd[j]), offset=float(mu[j]), param=w),)
-            )
-            for w in self.play_fractions
-            for j, n in enumerate(names)
-        ]
-        outs.append(
-            (
-                {
-                    "structure": "prandtl_ishlinskii",
-                    "half_widths_in_std": list(self.play_fractions),
-                },
-                terms,
-            )
-        )
+        pi = [t for w in self.play_fractions for t in operator("play", w)]
+        widths = list(self.play_fractions)
+        outs.append(({"structure": "prandtl_ishlinskii", "half_widths_in_std": widths}, pi))
         return outs
 
     def signature(

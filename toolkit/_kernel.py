@@ -17,30 +17,22 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from .terms import FUNCTIONS, Term
-
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
-_CODE = {name: i for i, name in enumerate(FUNCTIONS)}
-assert list(_CODE) == [
-    "pow",
-    "sin",
-    "cos",
-    "tanh",
-    "sign",
-    "abs",
-    "dead_zone",
-    "sat",
-    "relu",
-    "play",
-    "bouc_wen",
-], "the kernel's function codes follow terms.FUNCTIONS"
+#: The factor functions by code, in the order of ``tendonkit.terms.FUNCTIONS`` (which checks
+#: it); from ``play`` on they are hysteresis operators with a state.
+CODES = (
+    "pow", "sin", "cos", "tanh", "sign", "abs", "dead_zone", "sat", "relu", "play", "bouc_wen",
+)  # fmt: skip
+_CODE = {name: i for i, name in enumerate(CODES)}
+PLAY, BOUC_WEN = _CODE["play"], _CODE["bouc_wen"]
 
 
 @dataclass(frozen=True)
@@ -69,9 +61,7 @@ class FlatTerms:
         return int(self.ptr.shape[0] - 1)
 
 
-def flatten(
-    terms: Sequence[Term], first: Mapping[str, int], second: Mapping[str, int]
-) -> FlatTerms:
+def flatten(terms: Sequence[Any], first: Mapping[str, int], second: Mapping[str, int]) -> FlatTerms:
     """Flat arrays for ``terms`` reading signals by name from two buffers."""
     rows: list[tuple[int, int, int, int, int, float, float, float, float, float]] = []
     ptr = [0]
@@ -129,26 +119,42 @@ def _fn(code: int, z: float, power: float, param: float) -> float:  # pragma: no
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _memory(code, z, param, param2, st, f):  # pragma: no cover - numba
-    """One step of a hysteresis operator (terms._step_stateful), its state ``st[f]`` advanced."""
-    a = st[f, 0]
-    if code == 9:  # play
+def hysteresis_step(code, z, param, param2, st):  # pragma: no cover - numba
+    """One sample of a hysteresis operator: ``(value, d value / d z)``, its state ``st`` advanced.
+
+    ``st`` holds two numbers, NaN before the first sample: the play's output, or the Bouc-Wen
+    operator's previous ``z`` and its ``h`` (the reference is ``terms._step_stateful``).
+    """
+    a = st[0]
+    if code == PLAY:
         if np.isnan(a):
-            st[f, 0] = z
-            return z
+            st[0] = z
+            return z, 1.0
         p = min(max(a, z - param), z + param)
-        st[f, 0] = p
-        return p
-    if np.isnan(a):  # bouc_wen, from h = 0
-        st[f, 0] = z
-        st[f, 1] = 0.0
-        return 0.0
-    h = st[f, 1]
+        st[0] = p
+        return p, 1.0 if p != a else 0.0
+    if np.isnan(a):  # Bouc-Wen, from h = 0
+        st[0] = z
+        st[1] = 0.0
+        return 0.0, 1.0
+    h = st[1]
     d = z - a
-    h = h + d - param * abs(d) * h - param2 * d * abs(h)
-    st[f, 0] = z
-    st[f, 1] = h
-    return h
+    s = 1.0 if d > 0 else (-1.0 if d < 0 else 0.0)
+    der = 1.0 - param * s * h - param2 * abs(h)
+    st[0] = z
+    st[1] = h + d - param * abs(d) * h - param2 * d * abs(h)
+    return st[1], der
+
+
+@njit(cache=True, nogil=True)
+def hysteresis_record(code, z, param, param2):  # pragma: no cover - numba
+    """Values and derivatives of a hysteresis operator run along the record ``z``."""
+    st = np.full(2, np.nan)
+    val = np.empty(z.shape[0])
+    der = np.empty(z.shape[0])
+    for k in range(z.shape[0]):
+        val[k], der[k] = hysteresis_step(code, z[k], param, param2, st)
+    return val, der
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -163,8 +169,8 @@ def _terms_at(  # pragma: no cover - numba
             if diff[f]:
                 s = s - buf[kk - lag[f] - diff[f], col[f]]
             z = (s - offset[f]) * scale[f]
-            if code[f] >= 9:
-                prod *= _memory(code[f], z, param[f], param2[f], st, f)
+            if code[f] >= PLAY:
+                prod *= hysteresis_step(code[f], z, param[f], param2[f], st[f])[0]
             else:
                 prod *= _fn(code[f], z, power[f], param[f])
         theta[t] = prod
@@ -399,3 +405,56 @@ def state_loop(A, Bu, x0):  # pragma: no cover - numba
             xn[i] = acc
         x, xn = xn, x
     return X
+
+
+@njit(cache=True, nogil=True)
+def arx_sensitivity(Phi, A, coef, J, qcol, qlag, start, L):  # pragma: no cover - numba
+    """``S`` (N + L, ny, P): sensitivities of an ARX simulation from sample ``start``.
+
+    ``output_error.refine`` minimises the free-run simulation error of a model; its Jacobian by
+    forward differences costs one simulation per parameter per iteration — for an ARX with four
+    inputs, eight lags and a few dozen terms, over two hundred simulations each step.  For an ARX
+    (with memoryless terms) the derivative of the simulated output with respect to every
+    coefficient obeys the model's own recursion, linearised along the simulation:
+
+        S[k] = Φ[k] - Σ_w A_w S[k-w] + Σ_t c_t Σ_q ∂θ_t/∂ŷ_q[k] S[k - lag_q]
+
+    where ``Φ[k]`` is the regressor of each coefficient evaluated on the simulated outputs (the
+    direct derivative) and the last sum runs over the terms' readings of past outputs.  One pass
+    over the record gives every column at the cost of a few simulations.
+
+    ``Phi`` (N, ny, P) the direct derivatives; ``A`` (na, ny, ny); ``coef`` (nt, ny) the term
+    coefficients; ``J`` (nt, nq, N) the terms' derivatives with respect to their ``nq``
+    readings of past outputs, output ``qcol[q]`` at lag ``qlag[q]``.  Rows before ``L + start``
+    are zero (measured history).
+    """
+    N, ny, P = Phi.shape
+    na = A.shape[0]
+    nt = coef.shape[0]
+    nq = qcol.shape[0]
+    S = np.zeros((N + L, ny, P))
+    for k in range(start, N):
+        kk = k + L
+        for i in range(ny):
+            row = S[kk, i]
+            for p in range(P):
+                row[p] = Phi[k, i, p]
+            for w in range(na):
+                past = S[kk - 1 - w]
+                for j in range(ny):
+                    a = A[w, i, j]
+                    if a != 0.0:
+                        for p in range(P):
+                            row[p] -= a * past[j, p]
+            for t in range(nt):
+                c = coef[t, i]
+                if c == 0.0:
+                    continue
+                for q in range(nq):
+                    g = c * J[t, q, k]
+                    if g != 0.0:
+                        past = S[kk - qlag[q]]
+                        jq = qcol[q]
+                        for p in range(P):
+                            row[p] += g * past[jq, p]
+    return S

@@ -7,7 +7,7 @@ approximation (Ljung, *System Identification*, 2nd ed., §7.3).  :func:`refine` 
 every continuous parameter of a model by its simulation error, starting from the model as
 given, with :func:`scipy.optimize.least_squares` (trust-region, Jacobian-scaled, through the
 compiled simulation; the Jacobian of an ARX's coefficients exact by forward sensitivities,
-:mod:`tendonkit._sensitivity`, everything else by forward differences):
+:func:`tendonkit._kernel.arx_sensitivity`, everything else by forward differences):
 
 - ``state_space``: ``A``, ``B``, ``C``, the non-zero ``D``, the term matrix ``E``, ``u0`` and
   ``y0`` where set;
@@ -35,7 +35,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from ._sensitivity import arx_sensitivity
+from ._kernel import arx_sensitivity
 from ._simulate_arx import arx_max_lag
 from .dataset import Dataset
 from .errors import SchemaError
@@ -236,7 +236,7 @@ def refine(
     analytic : bool
         For an ARX model (memoryless terms, no output blocks, no clipped-state terms, initial
         state from the data): the Jacobian of the coefficients by forward sensitivities
-        (:mod:`tendonkit._sensitivity`, exact, one pass), the blocks' parameters by forward
+        (:func:`tendonkit._kernel.arx_sensitivity`, exact, one pass), the blocks' parameters by forward
         differences.  ``False``, and every other model: forward differences throughout (one
         simulation per parameter).
 
@@ -258,20 +258,35 @@ def refine(
 
     n_res = sum(e.y.size for e in data.experiments)
 
+    last: dict[str, Any] = {}
+
+    def run(theta: FloatArray) -> tuple[list[FloatArray] | None, FloatArray]:
+        """The simulations (None: not a model) and residuals at ``theta``.  The last
+        evaluation is kept: the Jacobian at an accepted step reuses its simulations."""
+        if "theta" in last and np.array_equal(last["theta"], theta):
+            return last["sims"], last["r"]
+        sims, r = None, np.full(n_res, np.inf)  # inf: a step that left the domain
+        m = None
+        if np.all(np.isfinite(theta)):
+            try:
+                m = decode(theta)
+            except SchemaError:  # e.g. a saturation whose limits crossed: step back
+                m = None
+        if m is not None:
+            with np.errstate(all="ignore"):
+                sims = [simulate(m, e.u, y=e.y, initial=initial) for e in data.experiments]
+            # a diverged simulation is not finite, which makes the optimiser shorten its step
+            r = np.concatenate(
+                [
+                    ((e.y - sim) / scale).ravel()
+                    for e, sim in zip(data.experiments, sims, strict=True)
+                ]
+            )
+        last.update(theta=np.array(theta, dtype=float), sims=sims, r=r)
+        return sims, r
+
     def residuals(theta: FloatArray) -> FloatArray:
-        if not np.all(np.isfinite(theta)):
-            return np.full(n_res, np.inf)  # a step that left the parameters' domain
-        try:
-            m = decode(theta)
-        except SchemaError:  # e.g. a saturation whose limits crossed: not a model, step back
-            return np.full(n_res, np.inf)
-        errs = []
-        with np.errstate(all="ignore"):
-            for e in data.experiments:
-                sim = simulate(m, e.u, y=e.y, initial=initial)
-                errs.append(((e.y - sim) / scale).ravel())
-        # a diverged simulation is not finite, which makes the optimiser shorten its step
-        return np.concatenate(errs)
+        return run(theta)[1].copy()
 
     r0 = residuals(theta0)
     cost0 = float(r0 @ r0)
@@ -279,7 +294,7 @@ def refine(
         return model
     jac: Any = "2-point"
     if analytic and _arx_sensitivity_applies(model, initial):
-        jac = _arx_jacobian(model, data, decode, residuals, scale)
+        jac = _arx_jacobian(model, data, decode, run, scale)
     with np.errstate(all="ignore"):  # trial steps may diverge; the optimiser steps back
         sol = least_squares(
             residuals, theta0, jac=jac, x_scale="jac", ftol=tol, xtol=tol, max_nfev=max_nfev
@@ -314,97 +329,97 @@ def _arx_jacobian(
     model: Model,
     data: Dataset,
     decode: Callable[[FloatArray], Model],
-    residuals: Callable[[FloatArray], FloatArray],
+    run: Callable[[FloatArray], tuple[list[FloatArray] | None, FloatArray]],
     scale: FloatArray,
 ) -> Callable[[FloatArray], FloatArray]:
     """The Jacobian of :func:`refine`'s residuals for an ARX model (see ``analytic``).
 
     The coefficients come first in the parameter vector (``_codec``: ``A``, the non-zero
-    ``B``, the offset, the term coefficients), the blocks' parameters after them.
+    ``B``, the offset, the term coefficients), the blocks' parameters after them.  ``run``
+    gives the simulations and residuals at a parameter vector (those of the step just taken).
     """
     rep0 = model.representation
     assert isinstance(rep0, ARX)
-    masks_b = [np.asarray(b) != 0 for b in rep0.B]
+    outputs, inputs = list(model.output_names), list(model.input_names)
+    ny, nu, nt = len(outputs), len(inputs), len(rep0.terms)
+    # The structure is fixed (the terms are memoryless, so only coefficients change): which
+    # coefficient multiplies what, and where the terms read past outputs, is known once.
+    b_entries = [
+        (lag, i, j) for lag, b in enumerate(rep0.B) for i, j in zip(*np.nonzero(b), strict=True)
+    ]
     n_lin = (
         sum(a.size for a in rep0.A)
-        + sum(int(m.sum()) for m in masks_b)
-        + (0 if rep0.offset is None else rep0.offset.size)
-        + (0 if rep0.term_coefficients is None else rep0.term_coefficients.size)
+        + len(b_entries)
+        + (0 if rep0.offset is None else ny)
+        + (nt * ny if rep0.term_coefficients is not None else 0)
     )
-    outputs, inputs = list(model.output_names), list(model.input_names)
+    L = arx_max_lag(rep0, nu)
+    ct = CompiledTerms(rep0.terms) if nt and rep0.term_coefficients is not None else None
+    qs = [q for q, (n, _) in enumerate(ct.keys) if n in outputs] if ct is not None else []
+    qcol = np.array([outputs.index(ct.keys[q][0]) for q in qs] if ct else [], dtype=np.int64)
+    qlag = np.array([ct.keys[q][1] for q in qs] if ct else [], dtype=np.int64)
+
+    def regressors(rep: ARX, Up: FloatArray, Yp: FloatArray, N: int) -> tuple[Any, Any]:
+        """Φ (N, ny, n_lin): each coefficient's regressor on the simulated outputs, and the
+        terms' derivatives with respect to their readings of past outputs (nt, nq, N)."""
+        ks = np.arange(N) + L
+        Phi = np.zeros((N, ny, n_lin))
+        p = 0
+        for w, a in enumerate(rep.A):
+            for i, j in np.ndindex(a.shape):
+                Phi[:, i, p] = -Yp[ks - 1 - w, j]
+                p += 1
+        for lag, i, j in b_entries:
+            Phi[:, i, p] = Up[ks - lag - rep.nk[j], j]
+            p += 1
+        if rep.offset is not None:
+            Phi[:, range(ny), range(p, p + ny)] = 1.0
+            p += ny
+        J = np.zeros((nt, 0, N))
+        if ct is not None:
+            src = {n: (Up, j) for j, n in enumerate(inputs)}
+            src.update({n: (Yp, j) for j, n in enumerate(outputs)})
+            values = np.array([src[n][0][ks - lag, src[n][1]] for n, lag in ct.keys])
+            values = values.reshape(len(ct.keys), N)
+            theta_t = np.broadcast_to(ct.evaluate(values), (nt, N))  # constants: (nt,)
+            for t in range(nt):
+                Phi[:, range(ny), range(p, p + ny)] = theta_t[t][:, None]
+                p += ny
+            if qs:
+                J = np.ascontiguousarray(ct.jacobian(values)[:, qs, :])
+        return Phi, J
 
     def jac(theta: FloatArray) -> FloatArray:
         m = decode(theta)
         rep = m.representation
         assert isinstance(rep, ARX)
-        ny, nu = len(outputs), len(inputs)
+        sims, r0 = run(theta)
+        if sims is None:
+            return np.zeros((r0.size, theta.size))
+        coef = np.zeros((nt, ny)) if rep.term_coefficients is None else rep.term_coefficients
+        A = np.array(rep.A).reshape(len(rep.A), ny, ny) if rep.A else np.zeros((0, ny, ny))
         blocks: list[FloatArray] = []
         with np.errstate(all="ignore"):
-            for e in data.experiments:
-                ub = _apply_blocks(m.input_blocks, m.input_names, e.u, True)
-                ys = simulate(m, e.u, y=e.y, initial="estimate")
-                N, L = e.u.shape[0], arx_max_lag(rep, nu)
+            for e, ys in zip(data.experiments, sims, strict=True):
+                N = e.u.shape[0]
                 start = min(L, N)
+                ub = _apply_blocks(m.input_blocks, m.input_names, e.u, True)
                 Up = np.vstack([np.repeat(ub[:1], L, axis=0), ub])
                 Yp = np.vstack([np.repeat(e.y[:1], L, axis=0), ys])
-                ks = np.arange(N) + L
-                cols: list[FloatArray] = []  # (N, ny) per parameter, codec order
-                for w, a in enumerate(rep.A):
-                    for i, j in np.ndindex(a.shape):
-                        c = np.zeros((N, ny))
-                        c[:, i] = -Yp[ks - 1 - w, j]
-                        cols.append(c)
-                for lag, mask in enumerate(masks_b):
-                    for i, j in zip(*np.nonzero(mask), strict=True):
-                        c = np.zeros((N, ny))
-                        c[:, i] = Up[ks - lag - rep.nk[j], j]
-                        cols.append(c)
-                if rep.offset is not None:
-                    for i in range(ny):
-                        c = np.zeros((N, ny))
-                        c[:, i] = 1.0
-                        cols.append(c)
-                nt = len(rep.terms)
-                J = np.zeros((nt, 0, N))
-                qcol = np.zeros(0, dtype=np.int64)
-                qlag = np.zeros(0, dtype=np.int64)
-                coef = (
-                    np.zeros((nt, ny)) if rep.term_coefficients is None else rep.term_coefficients
-                )
-                if nt and rep.term_coefficients is not None:
-                    ct = CompiledTerms(rep.terms)
-                    src = {n: (Up, j) for j, n in enumerate(inputs)}
-                    src.update({n: (Yp, j) for j, n in enumerate(outputs)})
-                    values = np.array([src[n][0][ks - lag, src[n][1]] for n, lag in ct.keys])
-                    values = values.reshape(len(ct.keys), N)
-                    theta_t = np.broadcast_to(ct.evaluate(values), (nt, N))  # constants: (nt,)
-                    for t in range(nt):
-                        for i in range(ny):
-                            c = np.zeros((N, ny))
-                            c[:, i] = theta_t[t]
-                            cols.append(c)
-                    qs = [q for q, (n, _) in enumerate(ct.keys) if n in outputs]
-                    if qs:
-                        J = np.ascontiguousarray(ct.jacobian(values)[:, qs, :])
-                    qcol = np.array([outputs.index(ct.keys[q][0]) for q in qs], dtype=np.int64)
-                    qlag = np.array([ct.keys[q][1] for q in qs], dtype=np.int64)
-                Phi = np.stack(cols, axis=2) if cols else np.zeros((N, ny, 0))
+                Phi, J = regressors(rep, Up, Yp, N)
                 Phi[:start] = 0.0  # the measured history does not depend on the parameters
-                A = np.array(rep.A).reshape(len(rep.A), ny, ny) if rep.A else np.zeros((0, ny, ny))
                 S = arx_sensitivity(
-                    np.ascontiguousarray(Phi), A, np.ascontiguousarray(coef, dtype=float),
-                    J, qcol, qlag, start, L,
-                )  # fmt: skip
+                    Phi, A, np.ascontiguousarray(coef, dtype=float), J, qcol, qlag, start, L
+                )
                 blocks.append((-S[L:] / scale[None, :, None]).reshape(N * ny, -1))
         out = np.vstack(blocks)
         if theta.size > n_lin:  # the blocks' parameters: forward differences
-            r0 = residuals(theta)
             extra = np.empty((out.shape[0], theta.size - n_lin))
             for col, p in enumerate(range(n_lin, theta.size)):
                 h = 1.4901161193847656e-08 * max(1.0, abs(float(theta[p])))
                 step = theta.copy()
                 step[p] += h
-                extra[:, col] = (residuals(step) - r0) / h
+                extra[:, col] = (run(step)[1] - r0) / h
             out = np.hstack([out, extra])
         return np.where(np.isfinite(out), out, 0.0)
 

@@ -52,6 +52,7 @@ from typing import Any
 from .errors import OptionError, SimulationError, raise_if
 
 __all__ = [
+    "LOST",
     "Outcome",
     "dask_problems",
     "default_jobs",
@@ -67,6 +68,10 @@ __all__ = [
 
 #: Retries of a task whose worker died, after the first attempt.
 RETRIES = 2
+#: How an outcome's ``error`` starts when the engine lost the task (its worker died, or it ran
+#: past the timeout) rather than the task failing: running it again may succeed.
+WORKER_DIED, TIMEOUT = "WorkerDied", "Timeout"
+LOST = (WORKER_DIED, TIMEOUT)
 
 
 @dataclass(frozen=True)
@@ -407,11 +412,9 @@ def _processes(
                 if not (s.conn in ready or s.process.sentinel in ready or late):
                     continue
                 got = None
-                try:
+                with contextlib.suppress(EOFError, OSError):
                     if s.conn.poll():
                         got = s.conn.recv()
-                except (EOFError, OSError):
-                    got = None
                 if got is not None:
                     index, value, error, who, seconds = got
                     s.task = None
@@ -437,7 +440,7 @@ def _processes(
                         yield Outcome(
                             lost,
                             None,
-                            f"Timeout: the task ran longer than {timeout:g} s; its worker "
+                            f"{TIMEOUT}: the task ran longer than {timeout:g} s; its worker "
                             "was stopped",
                             attempts[lost],
                             "",
@@ -450,7 +453,7 @@ def _processes(
                         yield Outcome(
                             lost,
                             None,
-                            f"WorkerDied: the worker running it died {attempts[lost]} times "
+                            f"{WORKER_DIED}: the worker running it died {attempts[lost]} times "
                             f"(last exit code {code})",
                             attempts[lost],
                             "",
@@ -611,7 +614,7 @@ def _dask(
                     if name == "KilledWorker":
                         # the scheduler gave up after `retries` more starts, each on a worker
                         # that died
-                        error, attempts = f"WorkerDied: {why}", max(starts, retries + 1)
+                        error, attempts = f"{WORKER_DIED}: {why}", max(starts, retries + 1)
                     else:
                         error, attempts = f"{name}: {why if why is not None else ''}", 1 + starts
                     yield Outcome(i, None, error.strip(), attempts, "", 0.0)

@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ._hysteresis import bouc_wen_record, play_record
+from ._kernel import CODES, hysteresis_record
 from .errors import SchemaError
 
 #: The closed set of functions a factor may apply (``z`` is the scaled, shifted signal).
@@ -49,6 +49,7 @@ FUNCTIONS: dict[str, str] = {
 STATEFUL = frozenset({"play", "bouc_wen"})
 
 _FN_CODES = {name: i for i, name in enumerate(FUNCTIONS)}
+assert tuple(FUNCTIONS) == CODES, "the compiled kernel's function codes follow FUNCTIONS"
 FloatArray = NDArray[np.float64]
 #: ``get(name, lag)`` returns signal ``name`` delayed by ``lag`` samples.
 Getter = Callable[[str, int], Any]
@@ -544,11 +545,8 @@ def _run_stateful(
         return z.copy(), z.copy()
     flat = np.ascontiguousarray(z.reshape(z.shape[0], -1).T, dtype=float)
     val, der = np.empty_like(flat), np.empty_like(flat)
-    for c in range(flat.shape[0]):  # compiled (toolkit._hysteresis): what _step_stateful does
-        if fn == "play":
-            val[c], der[c] = play_record(flat[c], float(param))
-        else:
-            val[c], der[c] = bouc_wen_record(flat[c], float(param), float(param2))
+    for c in range(flat.shape[0]):  # compiled: what _step_stateful does, sample by sample
+        val[c], der[c] = hysteresis_record(_FN_CODES[fn], flat[c], float(param), float(param2))
     return val.T.reshape(z.shape), der.T.reshape(z.shape)
 
 

@@ -189,11 +189,6 @@ def diagnose(
     from tqdm import tqdm
 
     registry = effect_registry()
-    if versus is not None and versus not in identifiers().names():
-        raise OptionError(
-            "diagnose cannot run:",
-            [f"versus: unknown identifier {versus!r}; registered: {identifiers().names()}."],
-        )
     settings = Settings(
         alpha=alpha,
         min_relative_gain=min_relative_gain,
@@ -208,6 +203,10 @@ def diagnose(
         jobs=jobs,
     )
     problems = settings.problems(registry.names())
+    if versus is not None and versus not in identifiers().names():
+        problems.append(
+            f"versus: unknown identifier {versus!r}; registered: {identifiers().names()}."
+        )
     if (train.inputs, train.outputs) != (valid.inputs, valid.outputs):
         problems.append(
             f"training and validation data differ in signals: {train.inputs}->{train.outputs} "
@@ -272,8 +271,8 @@ def versus_reference(method: str, train: Dataset, valid: Dataset) -> dict[str, A
 
 
 def _sim_pair(model: Model, valid: Dataset) -> tuple[FloatArray, FloatArray]:
-    data = aligned(model, valid)
-    return data.y, simulate_all(model, valid)
+    """The validation outputs (in the model's order) and the model's simulation of them."""
+    return aligned(model, valid).y, simulate_all(model, valid)
 
 
 # -- the stages -----------------------------------------------------------------------------------
@@ -482,8 +481,7 @@ def choose_baseline(train: Dataset, method: str, settings: Settings) -> Baseline
 
 def score_baseline(baseline: Model, valid: Dataset) -> Reference:
     """The baseline's validation simulation, fit, loss and residual analysis."""
-    y = aligned(baseline, valid).y
-    sim = simulate_all(baseline, valid)
+    y, sim = _sim_pair(baseline, valid)
     return Reference(
         y=y,
         sim=sim,

@@ -49,7 +49,8 @@ except ImportError:  # Windows
 
 from .. import __version__
 from ..errors import OptionError, OutputError, SchemaError, raise_if
-from ..parallel import Outcome, default_jobs, engine_name, run_tasks, task_problems
+from ..identification import is_int
+from ..parallel import LOST, Outcome, default_jobs, engine_name, run_tasks, task_problems
 from ..schema import Model
 from .campaign_report import render, summarise, write_outputs
 from .collect import fmu_parameters
@@ -110,8 +111,6 @@ _CRITERION = re.compile(r"^\s*([A-Za-z_][A-Za-z0-9_]*)\s*(<=|>=|==|!=|<|>)\s*(\S
 _CONTROLLER_KINDS = ("mpc", "open_loop", "python")
 #: Seconds a run may take before its worker is stopped (``[campaign] timeout_s``).
 DEFAULT_TIMEOUT_S = 900.0
-#: Errors of the machinery rather than of the run: a resumed campaign runs those rows again.
-RETRY_ON_RESUME = ("WorkerDied", "KilledWorker", "cancelled", "lost", "Timeout")
 _SETTINGS = ("horizon", "Q", "R", "pair_weight", "solver")
 
 
@@ -273,7 +272,7 @@ class CampaignSpec:
     rank_by: str = "rms_error_true_mrad"
     min_pass_rate: float = 1.0
     base_dir: Path = Path(".")
-    timeout_s: float = 900.0
+    timeout_s: float = DEFAULT_TIMEOUT_S
 
     @property
     def n_draws(self) -> int:
@@ -411,7 +410,7 @@ def _spec_from_dict(data: dict[str, Any], base_dir: Path, source: str) -> Campai
         problems.append(f"[campaign] name must be 1-80 letters, digits, ' ._-', found {name!r}")
         name = "campaign"
     seed = camp.get("seed", 0)
-    if not (isinstance(seed, int) and not isinstance(seed, bool) and seed >= 0):
+    if not (is_int(seed) and seed >= 0):
         problems.append(f"[campaign] seed must be a whole number >= 0, found {seed!r}")
         seed = 0
     sampling = camp.get("sampling", "random")
@@ -419,13 +418,13 @@ def _spec_from_dict(data: dict[str, Any], base_dir: Path, source: str) -> Campai
         problems.append(f"[campaign] sampling must be 'random' or 'grid', found {sampling!r}")
         sampling = "random"
     draws = camp.get("draws", 1)
-    if not (isinstance(draws, int) and not isinstance(draws, bool) and 1 <= draws <= 1_000_000):
+    if not (is_int(draws) and 1 <= draws <= 1_000_000):
         problems.append(f"[campaign] draws must be a whole number from 1 to 1e6, found {draws!r}")
         draws = 1
     if sampling == "grid" and "draws" in camp:
         problems.append("[campaign] draws is for random sampling; a grid has every combination")
     repeats = camp.get("repeats", 1)
-    if not (isinstance(repeats, int) and not isinstance(repeats, bool) and 1 <= repeats <= 1000):
+    if not (is_int(repeats) and 1 <= repeats <= 1000):
         problems.append(
             f"[campaign] repeats must be a whole number from 1 to 1000, found {repeats!r}"
         )
@@ -554,7 +553,7 @@ def _vary(
         if not isinstance(log, bool):
             problems.append(f"{where}: log must be true or false")
             log = False
-        if not (isinstance(points, int) and not isinstance(points, bool) and 1 <= points <= 1000):
+        if not (is_int(points) and 1 <= points <= 1000):
             problems.append(f"{where}: points must be a whole number from 1 to 1000")
             points = 3
         if ("range" in item) == ("values" in item):
@@ -689,7 +688,7 @@ def _references(items: Any, problems: list[str]) -> list[ReferenceSpec]:
                 f"{where}: duration must be a number of seconds > 0, found {duration!r}"
             )
             continue
-        if not (isinstance(petals, int) and not isinstance(petals, bool) and 1 <= petals <= 12):
+        if not (is_int(petals) and 1 <= petals <= 12):
             problems.append(
                 f"{where}: petals must be a whole number from 1 to 12, found {petals!r}"
             )
@@ -1027,7 +1026,6 @@ class _Journal:
     def __init__(self, path: Path, fingerprint: str, n_runs: int, fresh: bool) -> None:
         self.path = path
         self.done: dict[int, dict[str, Any]] = {}
-        self.rerun = 0
         folder = path.parent
         try:
             self.lock = (folder / ".lock").open("a")
@@ -1070,8 +1068,7 @@ class _Journal:
                 with contextlib.suppress(ValueError, KeyError, TypeError):
                     rec = json.loads(line)
                     error = rec.get("error") or ""
-                    if error.startswith(RETRY_ON_RESUME):
-                        self.rerun += 1
+                    if error.startswith(LOST):  # the engine lost it: run it again
                         continue
                     self.done[int(rec["run"])] = rec  # a line cut by the interruption is skipped
         manifest.write_text(
@@ -1144,8 +1141,6 @@ def run_campaign(
     -------
     CampaignResult
     """
-    # lazy: keeps the robot room off tendonkit.fmu until a campaign runs
-
     if not isinstance(spec, CampaignSpec):
         spec = load_spec(spec)
     raise_if(task_problems(jobs, scheduler), OptionError, f"Campaign {spec.name!r} cannot run:")
@@ -1155,7 +1150,7 @@ def run_campaign(
     except OSError as exc:
         raise OutputError(f"Cannot create the campaign folder {str(out)!r}: {exc}") from None
     fmu = _plant_fmu(spec, plant_fmu)
-    start = _fmu_start(fmu)
+    start = fmu_parameters(fmu)
     payloads = _payloads(spec, start)
     shared = _shared(spec, fmu)
     journal = _Journal(out / "runs.jsonl", _fingerprint(shared, payloads), len(payloads), fresh)
@@ -1203,10 +1198,6 @@ def _record(run_number: int, o: Outcome) -> dict[str, Any]:
     }
 
 
-def _fmu_start(fmu: Path) -> dict[str, Any]:
-    return dict(fmu_parameters(fmu))
-
-
 def rerun(
     result: CampaignResult, run_number: int, plant_fmu: str | Path | None = None
 ) -> CosimResult:
@@ -1218,9 +1209,7 @@ def rerun(
         raise OptionError(
             f"run must be a whole number from 0 to {result.spec.n_runs - 1}, found {run_number!r}"
         )
-    # lazy: keeps the robot room off tendonkit.fmu until a campaign runs
-
     spec = result.spec
     fmu = _plant_fmu(spec, plant_fmu)
-    [payload] = _payloads(spec, _fmu_start(fmu), [spec.runs()[run_number]])
+    [payload] = _payloads(spec, fmu_parameters(fmu), [spec.runs()[run_number]])
     return _simulate(_shared(spec, fmu), payload)

@@ -13,6 +13,8 @@ from tendonkit.cli.diagnose import render_diagnosis
 from tendonkit.dataset import Dataset, Experiment
 from tendonkit.diagnose import diagnose
 from tendonkit.diagnose.clip import atom_test
+from tendonkit.diagnose.engine import _encompassing, _name_cause
+from tendonkit.diagnose.findings import Finding
 from tendonkit.diagnose.report import write_report
 from tendonkit.diagnose.stats import autocorrelation_time, holm, loss_test
 from tendonkit.errors import OptionError, PluginError
@@ -526,3 +528,41 @@ def test_effects_tried_on_workers_give_the_same_diagnosis():
     assert a == b
     with pytest.raises(OptionError, match="jobs must be an integer >= 1"):
         diagnose(train, valid, jobs=0)
+
+
+def _sig(effect: str, gain: float, n_params: int) -> Finding:
+    return Finding(
+        cause=effect, effect=effect, gain=gain, fit={"y": gain}, relative_gain=0.1,
+        p_value=1e-6, significant=True, params={}, evidence={}, description="",
+        n_params=n_params, p_adjusted=1e-6,
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("after_simpler", "after_best", "named"),
+    [
+        (4.6, 0.01, "coulomb_friction"),  # the richer one explains the simpler one and more
+        (0.1, 0.01, "input_delay"),  # neither adds to the other: the same thing, parsimony
+        (4.6, 3.0, "input_delay"),  # both add: both at work, parsimony names the simpler first
+    ],
+)
+def test_parsimony_yields_to_an_encompassing_finding(after_simpler, after_best, named):
+    """A simpler finding within tie_ratio of the best, not significantly worse, is named by
+    parsimony — unless the best one still gains min_gain on top of it while it gains less on
+    top of the best one (the EMPS drive: friction against a fractional input delay)."""
+    rng = np.random.default_rng(0)
+    loss = rng.standard_normal(2000) ** 2
+    best, simpler = _sig("coulomb_friction", 31.9, 2), _sig("input_delay", 27.2, 1)
+    losses = {f.effect: (loss, None) for f in (best, simpler)}
+    gains = {("input_delay", "coulomb_friction"): after_simpler,
+             ("coulomb_friction", "input_delay"): after_best}  # fmt: skip
+    assert _name_cause([best, simpler], losses, 0.01, 0.8).effect == "input_delay"
+    record = _encompassing(best, simpler, lambda a, b: gains[a, b], 0.25)
+    assert record is not None and record["encompasses"] == (named == "coulomb_friction")
+    chosen = _name_cause(
+        [best, simpler], losses, 0.01, 0.8,
+        encompasses=lambda b, s: _encompassing(b, s, lambda a, c: gains[a, c], 0.25)["encompasses"],
+    )  # fmt: skip
+    assert chosen.effect == named
+    # a gain that cannot be measured leaves parsimony alone
+    assert _encompassing(best, simpler, lambda a, b: None, 0.25) is None

@@ -237,7 +237,8 @@ def diagnose(
     bar.update()
     trials, skipped = run_effects(registry, settings.effects, ctx, ref, valid, settings, bar)
     findings = adjust(trials, settings)
-    diagnosis = conclude(findings, trials, base, ref, train, settings, skipped, valid)
+    cross = cross_gains(trials, registry, train, valid, settings, ctx, ref)
+    diagnosis = conclude(findings, trials, base, ref, train, settings, skipped, valid, cross)
     trials = _with_builder(trials, diagnosis, registry, ctx, ref, valid, settings)
     steps = continue_sequence(
         diagnosis, trials, registry, train, valid, settings, bar, base.identifier
@@ -739,7 +740,10 @@ def continue_sequence(
         step_trials, step_skipped = run_effects(registry, names, ctx, ref, valid, settings, bar)
         findings = adjust(step_trials, settings)
         base = Baseline(method="previous step", identifier=None, model=start, check=None)
-        step_diag = conclude(findings, step_trials, base, ref, train, settings, step_skipped, valid)
+        cross = cross_gains(step_trials, registry, train, valid, settings, ctx, ref)
+        step_diag = conclude(
+            findings, step_trials, base, ref, train, settings, step_skipped, valid, cross
+        )
         chosen = step_diag.best
         if chosen is None or chosen.model is None:
             steps.append(_step(step_diag, len(steps) + 1, None, None, valid))
@@ -937,9 +941,26 @@ def conclude(
     settings: Settings,
     skipped: Sequence[dict[str, str]],
     valid: Dataset | None = None,
+    cross: Any = None,
 ) -> Diagnosis:
-    """Name the cause (or a tie) and assemble the :class:`Diagnosis`."""
+    """Name the cause (or a tie) and assemble the :class:`Diagnosis`.
+
+    ``cross(first, second)``: the validation gain of effect ``second`` added to the structure
+    of ``first``'s extension (:func:`cross_gains`), for the encompassing check of
+    :func:`_name_cause`; None skips it.
+    """
     losses = {t.effect: (t.loss, t.prediction_loss) for t in trials}
+    encompassing: dict[str, dict[str, Any]] = {}
+    encompasses = None
+    if cross is not None:
+
+        def encompasses(best: Finding, simpler: Finding) -> bool:
+            record = _encompassing(best, simpler, cross, settings.min_gain)
+            if record is None:
+                return False
+            encompassing[best.effect] = record
+            return bool(record["encompasses"])
+
     contests: dict[str, Any] = {}
     contest = None
     if settings.refine and valid is not None:
@@ -957,15 +978,16 @@ def conclude(
             }
             return winner
 
-    best = _name_cause(findings, losses, settings.alpha, settings.tie_ratio, contest)
-    if best is not None and best.effect in contests:
-        findings = [
-            dataclasses.replace(f, test={**f.test, "contest": contests[f.effect]})
-            if f.effect == best.effect
-            else f
-            for f in findings
-        ]
-        best = next(f for f in findings if f.effect == best.effect)
+    best = _name_cause(findings, losses, settings.alpha, settings.tie_ratio, contest, encompasses)
+    for key, records in (("contest", contests), ("encompassing", encompassing)):
+        if best is not None and best.effect in records:
+            findings = [
+                dataclasses.replace(f, test={**f.test, key: records[f.effect]})
+                if f.effect == best.effect
+                else f
+                for f in findings
+            ]
+            best = next(f for f in findings if f.effect == best.effect)
     unfit = None
     base_fit = _mean(ref.fit)
     if base.choice and base.choice.get("dead_time_left_to_diagnosis"):
@@ -1092,6 +1114,7 @@ def _name_cause(
     alpha: float,
     tie_ratio: float,
     contest: Any = None,
+    encompasses: Any = None,
 ) -> Finding | None:
     """The significant finding with the largest gain, unless a simpler one is as good.
 
@@ -1105,6 +1128,12 @@ def _name_cause(
     (same one-sided test, no margin) names the cause instead: an extension that contains
     another must earn its extra parameters.  (Without the gain condition a simpler finding
     with a tenth of the gain could win whenever the batch test is inconclusive.)
+
+    Unless the best one *encompasses* the simpler one (``encompasses(best, simpler)``, see
+    :func:`_encompassing`): added to the simpler finding's model it still gains at least
+    ``min_gain``, while the simpler one added to its model gains less.  Then the simpler one
+    explains part of what the best one explains and nothing else, and parsimony does not
+    apply: the parameters are earned by what the simpler structure leaves unexplained.
     """
     sig = [f for f in findings if f.significant]
     if not sig:
@@ -1122,8 +1151,92 @@ def _name_cause(
         if f.n_params >= best.n_params or f.gain < tie_ratio * best.gain:
             continue
         if routes_p_value(losses[f.effect], losses[best.effect]) >= alpha:
+            if encompasses is not None and encompasses(best, f):
+                continue
             return f
     return best
+
+
+def _encompassing(
+    best: Finding, simpler: Finding, cross: Any, min_gain: float
+) -> dict[str, Any] | None:
+    """Whether ``best`` encompasses ``simpler``: what each adds to the other's model.
+
+    ``cross(a, b)`` is the validation gain (points) of effect ``b`` added to the structure of
+    ``a``'s extension.  ``best`` encompasses ``simpler`` when, with ``simpler`` in the model,
+    ``best`` still gains at least ``min_gain`` and, with ``best`` in the model, ``simpler``
+    gains less: ``best`` explains what ``simpler`` explains and more (Mizon and Richard's
+    encompassing principle).  None when either gain cannot be measured.
+    """
+    after_simpler = cross(simpler.effect, best.effect)
+    after_best = cross(best.effect, simpler.effect)
+    if after_simpler is None or after_best is None:
+        return None
+    return {
+        "over": simpler.effect,
+        "gain_after_it": after_simpler,
+        "its_gain_after": after_best,
+        "min_gain": min_gain,
+        "encompasses": bool(after_simpler >= min_gain and after_best < min_gain),
+    }
+
+
+def cross_gains(
+    trials: Sequence[Trial],
+    registry: Any,
+    train: Dataset,
+    valid: Dataset,
+    settings: Settings,
+    ctx: Context,
+    ref: Reference,
+) -> Any:
+    """``cross(first, second)``: the validation gain of effect ``second`` on ``first``'s model.
+
+    ``first``'s structure is refitted on the training data (its builder, as the next step of
+    the sequence does, without the refinement) and ``second`` is tried on it exactly as in a
+    step (:func:`try_effect`); the gain is in fit points over that model.  None when
+    ``first`` has no builder or ``second`` cannot be tried.  Results are kept: each pair is
+    fitted once.
+    """
+    by_name = {t.effect: t for t in trials}
+    memo: dict[tuple[str, str], float | None] = {}
+
+    def builder(name: str) -> Any:
+        t = by_name.get(name)
+        if t is None:
+            return None
+        if t.build is None:  # tried on a worker: try it again here for its builder
+            again = try_effect(registry.get(name), name, ctx, ref, valid, settings)
+            if isinstance(again, Trial):
+                by_name[name] = t = dataclasses.replace(t, build=again.build)
+        return t.build
+
+    def cross(first: str, second: str) -> float | None:
+        if (first, second) in memo:
+            return memo[first, second]
+        memo[first, second] = None
+        build = builder(first)
+        if build is None:
+            return None
+        try:
+            with without_training_fit():
+                start = build(train)
+            base = score_baseline(start, valid)
+            sub = Context(
+                train=train,
+                baseline=start,
+                identifier=_Structure(build),
+                residuals=analyse(start, train),
+                seed=settings.seed,
+            )
+        except (TendonkitError, np.linalg.LinAlgError, ValueError, FloatingPointError):
+            return None
+        trial = try_effect(registry.get(second), second, sub, base, valid, settings)
+        if isinstance(trial, Trial) and math.isfinite(trial.gain):
+            memo[first, second] = trial.gain
+        return memo[first, second]
+
+    return cross
 
 
 def _with_training_fit(f: Finding, train: Dataset) -> Finding:

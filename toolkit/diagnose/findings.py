@@ -415,6 +415,13 @@ def _ambiguity(
             f"{a.cause} (gain {a.gain:.2f}) and {b.cause} (gain {b.gain:.2f}) explain these data "
             f"about equally well (one-sided p = {p_value:.3g} that {a.cause} is better)."
         )
+    enc = a.test.get("encompassing") or {}
+    if enc.get("encompasses") and enc.get("over") == b.effect:
+        statement += (
+            f" With {a.cause} in the model, {b.cause} gains {enc['its_gain_after']:+.2f} points; "
+            f"with {b.cause} in it, {a.cause} still gains {enc['gain_after_it']:+.2f}: "
+            f"{a.cause} accounts for what {b.cause} explains, so its extra parameters are earned."
+        )
     return {
         "between": [a.cause, b.cause],
         "gains": [a.gain, b.gain],

@@ -3,6 +3,7 @@ the result's JSON schema.  The plant and real-data suites live in tests/integrat
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -590,3 +591,42 @@ def test_routes_share_the_level_by_their_training_evidence():
     nothing = Extension(model=model, params={}, description="", train_gain=0.0)
     assert route_shares(ctx, nothing, True) == pytest.approx([0.5, 0.5])
     assert route_shares(ctx, nothing, False) == [1.0]
+
+
+@pytest.mark.parametrize(
+    ("friction_after_play", "play_after_friction", "named", "decided"),
+    [
+        (0.69, 0.39, "coulomb_friction", True),  # plant A-2: friction accounts for the play
+        (0.10, 0.90, "backlash", True),  # the play accounts for the friction: it is named
+        (0.46, 0.16, "coulomb_friction", False),  # plant A-1: neither, the tie stands
+    ],
+)
+def test_a_tie_is_decided_where_one_cause_encompasses_the_other(
+    friction_after_play, play_after_friction, named, decided
+):
+    import types
+
+    from tendonkit.diagnose.engine import _decide_tie
+    from tendonkit.diagnose.findings import _ambiguity
+
+    rng = np.random.default_rng(1)
+    loss = rng.standard_normal(2000) ** 2
+    friction, play = _sig("coulomb_friction", 3.33, 2), _sig("backlash", 2.98, 2)
+    losses = {f.effect: (loss, None) for f in (friction, play)}
+    gains = {("backlash", "coulomb_friction"): friction_after_play,
+             ("coulomb_friction", "backlash"): play_after_friction}  # fmt: skip
+    settings = types.SimpleNamespace(tie_ratio=0.8, alpha=0.01, min_gain=0.5)
+    records: dict = {}
+    best = _decide_tie(
+        [friction, play], friction, losses, settings, lambda a, b: gains[a, b], records
+    )
+    assert best.effect == named
+    best = dataclasses.replace(best, test={"encompassing": records[named]})
+    findings = [best, play if named == "coulomb_friction" else friction]
+    tie = _ambiguity(findings, best, losses, 0.8, 0.01)
+    assert tie is not None and tie["decided"] is decided
+    assert (
+        ("the data decide for " + named) in tie["statement"]
+        if decided
+        else ("neither accounts for the other" in tie["statement"])
+    )

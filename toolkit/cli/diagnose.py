@@ -258,7 +258,10 @@ def render_diagnosis(summary: dict[str, Any]) -> str:
     lines.extend(f"note: {n}" for n in evidence_notes(summary))
     if summary.get("ambiguous"):
         lines.append(summary["ambiguous"]["statement"])
-        lines.append("to tell them apart: " + summary["ambiguous"]["experiment"])
+        lines.append(
+            ("to confirm it: " if summary["ambiguous"].get("decided") else "to tell them apart: ")
+            + summary["ambiguous"]["experiment"]
+        )
     lines.append("findings (validation gain, p-value adjusted for trying every effect):")
     for f in summary["findings"]:
         mark = "*" if f["significant"] else " "

@@ -78,6 +78,7 @@ from .findings import (
     Step,
     _ambiguity,
     _mean,
+    tie_runner_up,
 )
 from .residuals import ResidualAnalysis, analyse
 from .stats import holm, loss_test, routes_p_value
@@ -996,6 +997,8 @@ def conclude(
     if cross is not None:
 
         def encompasses(best: Finding, simpler: Finding) -> bool:
+            if _nested(best, simpler):
+                return False
             record = _encompassing(best, simpler, cross, settings.min_gain)
             if record is None:
                 return False
@@ -1020,6 +1023,8 @@ def conclude(
             return winner
 
     best = _name_cause(findings, losses, settings.alpha, settings.tie_ratio, contest, encompasses)
+    if best is not None and cross is not None:
+        best = _decide_tie(findings, best, losses, settings, cross, encompassing)
     for key, records in (("contest", contests), ("encompassing", encompassing)):
         if best is not None and best.effect in records:
             findings = [
@@ -1220,6 +1225,53 @@ def _encompassing(
         "min_gain": min_gain,
         "encompasses": bool(after_simpler >= min_gain and after_best < min_gain),
     }
+
+
+def _decide_tie(
+    findings: list[Finding],
+    best: Finding,
+    losses: dict[str, tuple[FloatArray, FloatArray | None]],
+    settings: Settings,
+    cross: Any,
+    records: dict[str, dict[str, Any]],
+) -> Finding:
+    """The named finding after the encompassing check of a tie with another cause.
+
+    A tie (:func:`tie_runner_up`: a significant finding of another cause about as good) is
+    decided where the data allow it: each is added to the other's model (:func:`_encompassing`).
+    If the named one still gains ``min_gain`` on top of the other and the other gains less
+    on top of it, the tie is decided for the named one; the other way round, the other one
+    is named; otherwise the tie stands, with the experiment that would separate them.  The
+    record goes to ``records[named effect]`` (the finding's ``test.encompassing``).  Not
+    between a general cause and a special case of it (:func:`_nested`).
+    """
+    other = tie_runner_up(findings, best, losses, settings.tie_ratio, settings.alpha)
+    if other is None or _nested(best, other):
+        return best
+    record = _encompassing(best, other, cross, settings.min_gain)
+    if record is None:
+        return best
+    if not record["encompasses"] and (
+        record["its_gain_after"] >= settings.min_gain > record["gain_after_it"]
+    ):
+        # the other one explains what the named one explains, and more
+        records[other.effect] = {
+            "over": best.effect,
+            "gain_after_it": record["its_gain_after"],
+            "its_gain_after": record["gain_after_it"],
+            "min_gain": record["min_gain"],
+            "encompasses": True,
+        }
+        return other
+    records[best.effect] = record
+    return best
+
+
+def _nested(a: Finding, b: Finding) -> bool:
+    """Whether one of two causes is a special case of the other (:data:`SPECIAL_CASES`): the
+    general one then encompasses the special one by construction, and the refined contest of
+    :func:`_name_cause` decides between them instead."""
+    return a.cause in SPECIAL_CASES.get(b.cause, ()) or b.cause in SPECIAL_CASES.get(a.cause, ())
 
 
 def cross_gains(

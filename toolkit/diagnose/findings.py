@@ -388,6 +388,23 @@ def _mean(d: dict[str, float]) -> float:
     return float(np.mean(list(d.values()))) if d else float("nan")
 
 
+def tie_runner_up(
+    findings: list[Finding],
+    best: Finding,
+    losses: dict[str, tuple[FloatArray, FloatArray | None]],
+    tie_ratio: float,
+    alpha: float,
+) -> Finding | None:
+    """The best significant finding of another cause, if it ties with the named one: its gain
+    is at least ``tie_ratio`` of the named one's, or the named one is not significantly better."""
+    b = next((f for f in findings if f.significant and f.cause != best.cause), None)
+    if b is None:
+        return None
+    if b.gain >= tie_ratio * best.gain:
+        return b
+    return b if routes_p_value(losses[b.effect], losses[best.effect]) >= alpha else None
+
+
 def _ambiguity(
     findings: list[Finding],
     best: Finding,
@@ -396,14 +413,11 @@ def _ambiguity(
     alpha: float,
 ) -> dict[str, Any] | None:
     """A tie between the named cause and the best significant finding of another cause."""
-    b = next((f for f in findings if f.significant and f.cause != best.cause), None)
+    b = tie_runner_up(findings, best, losses, tie_ratio, alpha)
     if b is None:
         return None
     a = best
     p_value = routes_p_value(losses[b.effect], losses[a.effect])
-    close = b.gain >= tie_ratio * a.gain or p_value >= alpha
-    if not close:
-        return None
     if b.gain > a.gain:
         statement = (
             f"{b.cause} gains more than the named {a.cause} ({b.gain:.2f} against {a.gain:.2f} "
@@ -416,16 +430,24 @@ def _ambiguity(
             f"about equally well (one-sided p = {p_value:.3g} that {a.cause} is better)."
         )
     enc = a.test.get("encompassing") or {}
-    if enc.get("encompasses") and enc.get("over") == b.effect:
+    decided = False
+    if enc.get("over") == b.effect:
         statement += (
             f" With {a.cause} in the model, {b.cause} gains {enc['its_gain_after']:+.2f} points; "
-            f"with {b.cause} in it, {a.cause} still gains {enc['gain_after_it']:+.2f}: "
-            f"{a.cause} accounts for what {b.cause} explains, so its extra parameters are earned."
+            f"with {b.cause} in it, {a.cause} gains {enc['gain_after_it']:+.2f}"
+        )
+        decided = bool(enc.get("encompasses"))
+        statement += (
+            f": the data decide for {a.cause}, which accounts for what {b.cause} explains."
+            if decided
+            else f": neither accounts for the other (the smallest gain that counts is "
+            f"{enc['min_gain']:g} points)."
         )
     return {
         "between": [a.cause, b.cause],
         "gains": [a.gain, b.gain],
         "p_value": p_value,
+        "decided": decided,
         "statement": statement,
         "experiment": DISCRIMINATING.get(frozenset({a.cause, b.cause}), DEFAULT_EXPERIMENT),
     }

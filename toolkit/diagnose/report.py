@@ -71,7 +71,11 @@ def write_report(
     if diagnosis.ambiguous:
         rep.text(
             diagnosis.ambiguous["statement"]
-            + " Experiment to tell them apart: "
+            + (
+                " Experiment to confirm it: "
+                if diagnosis.ambiguous.get("decided")
+                else " Experiment to tell them apart: "
+            )
             + diagnosis.ambiguous["experiment"]
         )
     if len(d["sequence"]) > 1:

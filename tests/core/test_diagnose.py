@@ -569,30 +569,6 @@ def test_parsimony_yields_to_an_encompassing_finding(after_simpler, after_best, 
     assert _encompassing(best, simpler, lambda a, b: None, 0.25) is None
 
 
-def test_routes_share_the_level_by_their_training_evidence():
-    """Weighted Bonferroni over the free-run and prediction routes: each route's share is the
-    extension's error-energy reduction on that route of the *training* data (floored at 10 %),
-    equal shares when neither improves."""
-    from tendonkit.diagnose.effect import Context, Extension
-    from tendonkit.diagnose.engine import MIN_ROUTE_SHARE, route_shares
-    from tendonkit.diagnose.residuals import analyse
-    from tendonkit.manager import identifiers
-
-    train = _arx_data(5, 1500)
-    ident = identifiers().get("arx").create(na=2, nb=1)
-    model = ident.identify(train)
-    ctx = Context(train=train, baseline=model, identifier=ident, residuals=analyse(model, train))
-    base = ctx.baseline_score
-    # the same model: the prediction route sees nothing; the free run "gained" 10 points
-    gained = Extension(model=model, params={}, description="", train_gain=10.0)
-    r_sim = 1 - ((100 - base - 10) / (100 - base)) ** 2
-    assert r_sim > 0
-    assert route_shares(ctx, gained, True) == pytest.approx([1 - MIN_ROUTE_SHARE, MIN_ROUTE_SHARE])
-    nothing = Extension(model=model, params={}, description="", train_gain=0.0)
-    assert route_shares(ctx, nothing, True) == pytest.approx([0.5, 0.5])
-    assert route_shares(ctx, nothing, False) == [1.0]
-
-
 @pytest.mark.parametrize(
     ("friction_after_play", "play_after_friction", "named", "decided"),
     [

@@ -523,43 +523,6 @@ def prediction_losses(model: Model, valid: Dataset) -> FloatArray | None:
     return _loss(data.y, pred)
 
 
-#: Smallest share of the significance level a route of evidence keeps, whatever the training
-#: data say of it (:func:`route_shares`).
-MIN_ROUTE_SHARE = 0.1
-
-
-def route_shares(ctx: Context, ext: Extension, prediction: bool) -> list[float]:
-    """Shares of the level for the free-run and the prediction routes, from the training data.
-
-    The routes' p-values are combined by a weighted Bonferroni (``min p_i / w_i``), which keeps
-    the level for any weights fixed without the validation data.  Each route's weight is the
-    extension's relative reduction of that route's error energy on the *training* data —
-    free run ``1 - ((100 - fit_ext) / (100 - fit_base))²`` from the training fits the effect
-    chose by, one-step prediction from the training predictions — floored at
-    :data:`MIN_ROUTE_SHARE`.  Equal shares cost a factor 2 where one route cannot see the
-    effect: a force-loop lag behind the commanded inputs leaves the one-step prediction from
-    measured outputs unchanged (its p-value is 1) while the free run gains +20 points.
-    """
-    if not prediction:
-        return [1.0]
-    base = ctx.baseline_score
-    r_sim = 0.0
-    if math.isfinite(base) and base < 100.0:
-        r_sim = 1.0 - ((100.0 - (base + ext.train_gain)) / (100.0 - base)) ** 2
-    r_pred = 0.0
-    if "train_prediction_loss" not in ctx._cache:
-        ctx._cache["train_prediction_loss"] = prediction_losses(ctx.baseline, ctx.train)
-    base_pred = ctx._cache["train_prediction_loss"]
-    pred = prediction_losses(ext.model, ctx.train) if base_pred is not None else None
-    if base_pred is not None and pred is not None and float(np.mean(base_pred)) > 0:
-        r_pred = 1.0 - float(np.mean(pred)) / float(np.mean(base_pred))
-    r = np.array([r_sim, r_pred])
-    r = np.where(np.isfinite(r), np.clip(r, 0.0, None), 0.0)
-    w = r / r.sum() if r.sum() > 0 else np.full(2, 0.5)
-    w = np.clip(w, MIN_ROUTE_SHARE, 1.0 - MIN_ROUTE_SHARE)  # two routes: still sums to 1
-    return [float(x) for x in w]
-
-
 def try_effect(
     effect: Effect, name: str, ctx: Context, ref: Reference, valid: Dataset, settings: Settings
 ) -> Trial | str:
@@ -586,18 +549,14 @@ def try_effect(
         ptest = loss_test(base_pred, pred, margin=delta)
         routes.append(ptest.p_value)
         test_info["prediction"] = {**ptest.to_dict(), "horizon": PREDICTION_HORIZON}
-    shares = route_shares(ctx, ext, len(routes) > 1)
     direct = _direct_test(effect, ctx, ext, valid)
     if direct is not None:
         routes.append(direct["p_value"])
         test_info["direct"] = direct
-        # the direct test has no training counterpart: an equal share of its own
-        shares = [w * (len(routes) - 1) / len(routes) for w in shares] + [1.0 / len(routes)]
-    # Several routes to the same finding: a weighted Bonferroni over them keeps its level.
-    p_value = min(1.0, min(p / w for p, w in zip(routes, shares, strict=True)))
+    # Several routes to the same finding: Bonferroni over them keeps its level.
+    p_value = min(1.0, len(routes) * min(routes))
     if len(routes) > 1:
         test_info["loss_p_value"] = test.p_value
-        test_info["route_shares"] = shares
     gain = _mean(ext_fit) - _mean(ref.fit) if np.all(np.isfinite(f)) else -math.inf
     evidence = effect.signature(ctx, baseline, valid, ref.residuals) or {}
     return Trial(

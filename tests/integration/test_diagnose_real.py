@@ -183,7 +183,11 @@ def test_default_options_name_the_known_effect(name):
         enc = d.best.test["encompassing"]
         assert enc["over"] == "input_delay" and enc["encompasses"]
         assert enc["its_gain_after"] < d.settings["min_gain"] <= enc["gain_after_it"]
-        assert "accounts for what input_delay explains" in d.ambiguous["statement"]
+        assert (
+            d.ambiguous["decided"]
+            and "the data decide for coulomb_friction" in (d.ambiguous["statement"])
+        )
+        assert "to confirm it: " in render_diagnosis(d.to_dict())
 
 
 def test_bouc_wen_is_hysteresis_at_benchmark_grade():

@@ -1281,9 +1281,10 @@ def cross_gains(
                 residuals=analyse(start, train),
                 seed=settings.seed,
             )
+            # a check of a tie, not a finding: whatever goes wrong leaves the tie as it is
+            trial = try_effect(registry.get(second), second, sub, base, valid, settings)
         except (TendonkitError, np.linalg.LinAlgError, ValueError, FloatingPointError):
             return None
-        trial = try_effect(registry.get(second), second, sub, base, valid, settings)
         if isinstance(trial, Trial) and math.isfinite(trial.gain):
             memo[first, second] = trial.gain
         return memo[first, second]

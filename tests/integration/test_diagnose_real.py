@@ -29,7 +29,7 @@ from tendonkit.diagnose import Diagnosis, diagnose
 from tendonkit.diagnose.report import write_report
 from tendonkit.simulate import simulate
 
-pytestmark = [pytest.mark.slow, pytest.mark.usefixtures("real_data")]
+pytestmark = [pytest.mark.slow, pytest.mark.first, pytest.mark.usefixtures("real_data")]
 
 
 def _rmse(model, data: Dataset, skip: int) -> float:

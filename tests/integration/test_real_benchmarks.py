@@ -26,7 +26,7 @@ import pytest
 
 import tendonkit as tk
 
-pytestmark = [pytest.mark.slow, pytest.mark.usefixtures("real_data")]
+pytestmark = [pytest.mark.slow, pytest.mark.first, pytest.mark.usefixtures("real_data")]
 
 BENCH = Path(__file__).resolve().parents[2] / "benchmarks" / "bench_real.py"
 

@@ -342,7 +342,17 @@ def evidence_notes(summary: dict[str, Any]) -> list[str]:
     findings = summary.get("findings", [])
     best = next((f for f in findings if f["effect"] == named), None)
     if best is None:
-        return []
+        min_gain = float((summary.get("settings") or {}).get("min_gain", 0.0))
+        top = next((f for f in findings if not f["significant"] and f["gain"] >= min_gain), None)
+        if top is None or not math.isfinite(top["gain"]):
+            return []
+        more = _more_data(top, summary)
+        if not more:
+            return []
+        return [
+            f"{top['cause']} gains {top['gain']:+.2f} points but is not significant "
+            f"(p_adj = {top.get('p_adjusted', top['p_value']):.2g})" + more + "."
+        ]
     notes = []
     direct = best.get("test", {}).get("direct")
     if direct:
@@ -379,9 +389,69 @@ def evidence_notes(summary: dict[str, Any]) -> list[str]:
         else:
             notes.append(
                 f"{top['cause']} gains more ({top['gain']:+.2f} points) but is not significant "
-                f"(p_adj = {p_adj:.2g}): a possible second effect, not shown by these data."
+                f"(p_adj = {p_adj:.2g}): a possible second effect, not shown by these data"
+                + _more_data(top, summary)
+                + "."
             )
     return notes
+
+
+#: Largest multiple of the validation data :func:`more_data_factor` puts a number on.
+MORE_DATA_CAP = 20.0
+
+
+def more_data_factor(finding: dict[str, Any], alpha: float, n_findings: int) -> float | None:
+    """Roughly how many times as much validation data would make this finding significant.
+
+    For each loss route (free run, one-step prediction) the one-sided t-statistic of the
+    batch log-ratios, ``t = (mean + log(1 - margin)) / std_error``, grows with the square root
+    of the record's length if the gain holds.  A record ``K`` times as long has
+    ``clip(K·n / (4 τ), 5, 50)`` batches (:func:`tendonkit.diagnose.stats.loss_test`), and
+    needs ``t·√K`` above the t quantile of the route's share of the level after the Holm
+    adjustment (read from the finding's p-value and adjusted p-value; a capped adjustment
+    counts every finding).  The smallest such ``K`` on a grid up to :data:`MORE_DATA_CAP`,
+    over the routes; ``inf`` above it, None when no route points the right way.  An estimate
+    that assumes the gain and the errors' autocorrelation stay as they are.
+    """
+    # lazy: heavy (scipy), only when a note is written
+    from scipy import stats
+
+    test = finding.get("test") or {}
+    routes = []
+    for r in (test, test.get("prediction") or {}):
+        values = [r.get(k) for k in ("std_error", "log_ratio", "n_batches", "tau")]
+        if not all(isinstance(v, int | float) and math.isfinite(v) for v in values):
+            continue
+        se, mean, nb, tau = (float(v) for v in values)  # type: ignore[arg-type]
+        if se <= 0 or nb < 2:
+            continue
+        t = (mean + math.log(1.0 - float(r.get("margin", test.get("margin", 0.0))))) / se
+        routes.append((t, int(nb) * int(r.get("batch_length", 1)), tau))
+    if not any(t > 0 for t, _, _ in routes):
+        return None
+    k = len(routes) + (1 if test.get("direct") else 0)
+    p, p_adj = float(finding.get("p_value", 1.0)), float(finding.get("p_adjusted", 1.0))
+    holm = p_adj / p if 0 < p and p_adj < 1.0 else float(max(n_findings, 1))
+    level = alpha / (max(holm, 1.0) * max(k, 1))
+    for factor in np.geomspace(1.0, MORE_DATA_CAP, 61):
+        for t, n, tau in routes:
+            batches = int(np.clip((factor * n) // max(math.ceil(4.0 * tau), 1), 5, 50))
+            if t * math.sqrt(factor) >= stats.t.ppf(1.0 - level, batches - 1):
+                return float(factor)
+    return math.inf
+
+
+def _more_data(finding: dict[str, Any], summary: dict[str, Any]) -> str:
+    alpha = float((summary.get("settings") or {}).get("alpha", 0.01))
+    factor = more_data_factor(finding, alpha, len(summary.get("findings", [])))
+    if factor is None:
+        return ""
+    if factor > MORE_DATA_CAP:
+        return f"; even {MORE_DATA_CAP:.0f} times as much validation data would hardly show it"
+    return (
+        f"; about {factor:.1f} times as much validation data would show it if the gain holds "
+        "(an estimate from its test statistic)"
+    )
 
 
 def _mean(d: dict[str, float]) -> float:

@@ -58,6 +58,8 @@ def write_report(
             "The baseline's errors are consistent with noise or with structure none of the "
             "registered effects explains."
         )
+        for note in evidence_notes(d):
+            rep.text(note[0].upper() + note[1:])
     else:
         rep.text(
             f"Named cause: {best.cause} ({best.description}). Validation fit "

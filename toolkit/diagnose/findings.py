@@ -343,7 +343,16 @@ def evidence_notes(summary: dict[str, Any]) -> list[str]:
     best = next((f for f in findings if f["effect"] == named), None)
     if best is None:
         min_gain = float((summary.get("settings") or {}).get("min_gain", 0.0))
-        top = next((f for f in findings if not f["significant"] and f["gain"] >= min_gain), None)
+        top = next(
+            (
+                f
+                for f in findings
+                if not f["significant"]
+                and isinstance(f["gain"], int | float)
+                and f["gain"] >= min_gain
+            ),
+            None,
+        )
         if top is None or not math.isfinite(top["gain"]):
             return []
         more = _more_data(top, summary)

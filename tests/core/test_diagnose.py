@@ -539,6 +539,14 @@ def _sig(effect: str, gain: float, n_params: int) -> Finding:
     )  # fmt: skip
 
 
+def _equal_losses_and_cross(a: Finding, b: Finding, a_after_b: float, b_after_a: float):
+    """The same validation losses for two findings (neither beats the other), and their cross
+    gains keyed as ``cross(first, second)`` reads them."""
+    loss = np.random.default_rng(0).standard_normal(2000) ** 2
+    losses = {f.effect: (loss, None) for f in (a, b)}
+    return losses, {(b.effect, a.effect): a_after_b, (a.effect, b.effect): b_after_a}
+
+
 @pytest.mark.parametrize(
     ("after_simpler", "after_best", "named"),
     [
@@ -551,12 +559,8 @@ def test_parsimony_yields_to_an_encompassing_finding(after_simpler, after_best, 
     """A simpler finding within tie_ratio of the best, not significantly worse, is named by
     parsimony — unless the best one still gains min_gain on top of it while it gains less on
     top of the best one (the EMPS drive: friction against a fractional input delay)."""
-    rng = np.random.default_rng(0)
-    loss = rng.standard_normal(2000) ** 2
     best, simpler = _sig("coulomb_friction", 31.9, 2), _sig("input_delay", 27.2, 1)
-    losses = {f.effect: (loss, None) for f in (best, simpler)}
-    gains = {("input_delay", "coulomb_friction"): after_simpler,
-             ("coulomb_friction", "input_delay"): after_best}  # fmt: skip
+    losses, gains = _equal_losses_and_cross(best, simpler, after_simpler, after_best)
     assert _name_cause([best, simpler], losses, 0.01, 0.8).effect == "input_delay"
     record = _encompassing(best, simpler, lambda a, b: gains[a, b], 0.25)
     assert record is not None and record["encompasses"] == (named == "coulomb_friction")
@@ -585,12 +589,10 @@ def test_a_tie_is_decided_where_one_cause_encompasses_the_other(
     from tendonkit.diagnose.engine import _decide_tie
     from tendonkit.diagnose.findings import _ambiguity
 
-    rng = np.random.default_rng(1)
-    loss = rng.standard_normal(2000) ** 2
     friction, play = _sig("coulomb_friction", 3.33, 2), _sig("backlash", 2.98, 2)
-    losses = {f.effect: (loss, None) for f in (friction, play)}
-    gains = {("backlash", "coulomb_friction"): friction_after_play,
-             ("coulomb_friction", "backlash"): play_after_friction}  # fmt: skip
+    losses, gains = _equal_losses_and_cross(
+        friction, play, friction_after_play, play_after_friction
+    )
     settings = types.SimpleNamespace(tie_ratio=0.8, alpha=0.01, min_gain=0.5)
     records: dict = {}
     best = _decide_tie(

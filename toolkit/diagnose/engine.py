@@ -660,13 +660,38 @@ def _with_builder(
     best = diagnosis.best
     if best is None or settings.jobs == 1:
         return trials
-    out = list(trials)
-    for k, t in enumerate(out):
-        if t.effect == best.effect and t.build is None:
-            again = try_effect(registry.get(t.effect), t.effect, ctx, ref, valid, settings)
-            if isinstance(again, Trial):
-                out[k] = dataclasses.replace(t, build=again.build)
-    return out
+    return [
+        _rebuilt(t, registry, ctx, ref, valid, settings) if t.effect == best.effect else t
+        for t in trials
+    ]
+
+
+def _rebuilt(
+    t: Trial, registry: Any, ctx: Context, ref: Reference, valid: Dataset, settings: Settings
+) -> Trial:
+    """``t`` with its structure builder: a trial run on a worker comes back without it (a
+    closure), and is tried again here for it."""
+    if t.build is not None:
+        return t
+    again = try_effect(registry.get(t.effect), t.effect, ctx, ref, valid, settings)
+    return dataclasses.replace(t, build=again.build) if isinstance(again, Trial) else t
+
+
+def _start_from(
+    build: Any, train: Dataset, valid: Dataset, settings: Settings
+) -> tuple[Model, Reference, Context]:
+    """An extension's structure refitted on ``train`` as the baseline effects are tried on:
+    the model, its validation reference and the effects' context."""
+    with without_training_fit():
+        start = build(train)
+    ctx = Context(
+        train=train,
+        baseline=start,
+        identifier=_Structure(build),
+        residuals=analyse(start, train),
+        seed=settings.seed,
+    )
+    return start, score_baseline(start, valid), ctx
 
 
 class _Structure:
@@ -727,16 +752,7 @@ def continue_sequence(
             break
         bar.total = (bar.total or 0) + len(names) + 1
         bar.set_description(f"diagnose: step {len(steps) + 1}")
-        with without_training_fit():
-            start = build(train)
-        ref = score_baseline(start, valid)
-        ctx = Context(
-            train=train,
-            baseline=start,
-            identifier=_Structure(build),
-            residuals=analyse(start, train),
-            seed=settings.seed,
-        )
+        start, ref, ctx = _start_from(build, train, valid, settings)
         bar.update()
         step_trials, step_skipped = run_effects(registry, names, ctx, ref, valid, settings, bar)
         findings = adjust(step_trials, settings)
@@ -1210,18 +1226,11 @@ def _decide_tie(
     record = _encompassing(best, other, cross, settings.min_gain)
     if record is None:
         return best
-    if not record["encompasses"] and (
-        record["its_gain_after"] >= settings.min_gain > record["gain_after_it"]
-    ):
-        # the other one explains what the named one explains, and more
-        records[other.effect] = {
-            "over": best.effect,
-            "gain_after_it": record["its_gain_after"],
-            "its_gain_after": record["gain_after_it"],
-            "min_gain": record["min_gain"],
-            "encompasses": True,
-        }
-        return other
+    if not record["encompasses"]:
+        reverse = _encompassing(other, best, cross, settings.min_gain)  # the same two gains
+        if reverse is not None and reverse["encompasses"]:
+            records[other.effect] = reverse  # it explains what the named one does, and more
+            return other
     records[best.effect] = record
     return best
 
@@ -1254,14 +1263,10 @@ def cross_gains(
     memo: dict[tuple[str, str], float | None] = {}
 
     def builder(name: str) -> Any:
-        t = by_name.get(name)
-        if t is None:
+        if name not in by_name:
             return None
-        if t.build is None:  # tried on a worker: try it again here for its builder
-            again = try_effect(registry.get(name), name, ctx, ref, valid, settings)
-            if isinstance(again, Trial):
-                by_name[name] = t = dataclasses.replace(t, build=again.build)
-        return t.build
+        by_name[name] = _rebuilt(by_name[name], registry, ctx, ref, valid, settings)
+        return by_name[name].build
 
     def cross(first: str, second: str) -> float | None:
         if (first, second) in memo:
@@ -1271,16 +1276,7 @@ def cross_gains(
         if build is None:
             return None
         try:
-            with without_training_fit():
-                start = build(train)
-            base = score_baseline(start, valid)
-            sub = Context(
-                train=train,
-                baseline=start,
-                identifier=_Structure(build),
-                residuals=analyse(start, train),
-                seed=settings.seed,
-            )
+            _, base, sub = _start_from(build, train, valid, settings)
             # a check of a tie, not a finding: whatever goes wrong leaves the tie as it is
             trial = try_effect(registry.get(second), second, sub, base, valid, settings)
         except (TendonkitError, np.linalg.LinAlgError, ValueError, FloatingPointError):

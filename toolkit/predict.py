@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from ._kernel import state_loop
 from ._simulate_arx import _arx_parts, arx_max_lag
 from .errors import DataError, SimulationError
 from .schema import ARX, Model, SparseMap, StateSpace
@@ -127,13 +128,10 @@ def _predict_ss(rep: StateSpace, u: FloatArray, y: FloatArray, k: int) -> FloatA
 def _one_step_states(rep: StateSpace, K: FloatArray, u: FloatArray, y: FloatArray) -> FloatArray:
     """``Xp[t] = x̂(t | t-1)`` of the predictor with gain ``K``, for t = 0..N."""
     A, B, C, D = rep.A, rep.B, rep.C, rep.D
-    N = u.shape[0]
-    Xp = np.empty((N + 1, rep.n_states))
-    Xp[0] = estimate_x0(rep, u, y)
     AK, BK = A - K @ C, B - K @ D
-    for t in range(N):
-        Xp[t + 1] = AK @ Xp[t] + BK @ u[t] + K @ y[t]
-    return Xp
+    drive = np.vstack([u @ BK.T + y @ K.T, np.zeros((1, rep.n_states))])
+    x0 = np.asarray(estimate_x0(rep, u, y), dtype=float).ravel()
+    return np.asarray(state_loop(np.ascontiguousarray(AK, dtype=float), drive, x0.copy()))
 
 
 def fitted_kalman_gain(

@@ -27,6 +27,8 @@ BLOCK_KINDS: dict[str, tuple[str, ...]] = {
     "first_order_lag": ("pole",),
     "rate_limit": ("rate",),
 }
+#: The block kinds that are linear (a model whose blocks are all of these has a state-space form).
+LINEAR_BLOCKS = frozenset({"delay", "first_order_lag"})
 
 
 @dataclass(frozen=True)

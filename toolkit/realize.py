@@ -124,13 +124,38 @@ def fold_offsets(ss: StateSpace) -> StateSpace:
     return StateSpace(A=A, B=B, C=C, D=ss.D, x0=x0, K=K, terms=ss.terms, E=E)
 
 
+def add_input_lag(ss: StateSpace, m: int, pole: float) -> StateSpace:
+    """Prepend a first-order lag on input ``m`` as one state.
+
+    The lag block of :func:`tendonkit.simulate.simulate` is ``v[k] = a v[k-1] + (1 - a) u[k-1]``
+    (unit static gain, one sample of transport): its state ``w[k] = v[k]`` follows
+    ``w⁺ = a w + (1 - a) u`` and feeds the model in place of ``u``.  Like the delay registers,
+    the state holds ``u - u0`` (the static gain is one, so the lagged deviation is exact).
+    """
+    n, nu = ss.B.shape
+    a = float(pole)
+    A = np.zeros((n + 1, n + 1))
+    A[:n, :n] = ss.A
+    A[:n, n] = ss.B[:, m]
+    A[n, n] = a
+    B = np.vstack([ss.B, np.zeros((1, nu))])
+    B[:n, m] = 0.0
+    B[n, m] = 1.0 - a
+    C = np.hstack([ss.C, ss.D[:, m : m + 1]])
+    D = ss.D.copy()
+    D[:, m] = 0.0
+    x0 = None if ss.x0 is None else np.concatenate([ss.x0, np.zeros(1)])
+    return StateSpace(A=A, B=B, C=C, D=D, x0=x0, u0=ss.u0, y0=ss.y0)
+
+
 def to_state_space(model: Model) -> StateSpace:
-    """Linear state-space form of a linear model, input delay blocks included.
+    """Linear state-space form of a linear model, input delay and first-order lag blocks
+    included (each block is linear and acts on one input, so their order does not matter).
 
     Raises
     ------
     SchemaError
-        If the model is nonlinear (``sparse_map``, nonlinear terms or non-delay blocks).
+        If the model is nonlinear (``sparse_map``, nonlinear terms or other blocks).
     """
     if not model.is_linear:
         raise SchemaError(f"Model {model.name!r} is nonlinear and has no state-space form.")
@@ -144,6 +169,11 @@ def to_state_space(model: Model) -> StateSpace:
         raise SchemaError(f"{rep.kind} has no state-space form.")
     taps = [np.ones(1) for _ in range(nu)]
     for b in model.input_blocks:
-        m = model.input_names.index(b.signal)
-        taps[m] = np.convolve(taps[m], delay_taps(float(b.params["samples"])))
-    return add_input_delays(ss, taps)
+        if b.kind == "delay":
+            m = model.input_names.index(b.signal)
+            taps[m] = np.convolve(taps[m], delay_taps(float(b.params["samples"])))
+    ss = add_input_delays(ss, taps)
+    for b in model.input_blocks:
+        if b.kind == "first_order_lag":
+            ss = add_input_lag(ss, model.input_names.index(b.signal), float(b.params["pole"]))
+    return ss

@@ -29,6 +29,7 @@ import numpy as np
 from ._representations import (
     ARX,
     BLOCK_KINDS,
+    LINEAR_BLOCKS,
     SCHEMA_VERSION,
     Block,
     FloatArray,
@@ -101,13 +102,14 @@ class Model:
 
     @property
     def is_linear(self) -> bool:
-        """True for a linear representation without nonlinear blocks or terms."""
+        """True for a linear representation without nonlinear blocks or terms (input delays
+        and first-order lags are linear)."""
         rep = self.representation
         if isinstance(rep, SparseMap):
             return False
         if isinstance(rep, ARX | StateSpace) and rep.terms:
             return False
-        return all(b.kind == "delay" for b in self.input_blocks) and not self.output_blocks
+        return all(b.kind in LINEAR_BLOCKS for b in self.input_blocks) and not self.output_blocks
 
     def replace(self, **changes: Any) -> Model:
         """A copy with fields replaced (models are immutable)."""

@@ -271,6 +271,44 @@ def test_input_delay_blocks_are_realized(robot):
     assert np.max(np.abs(Y[-10:] - [0.4, -0.3])) < 1e-3
 
 
+class LaggedPlant:
+    """``plant`` behind a first-order lag on every input, written out here (not realised by
+    tendonkit): ``v[k] = a v[k-1] + (1 - a) u[k-1]`` from rest at ``U0``."""
+
+    def __init__(self, plant: LinearPlant, poles: list[float]) -> None:
+        self.plant, self.a, self.v = plant, np.array(poles), U0.copy()
+
+    def output(self) -> np.ndarray:
+        return self.plant.output()
+
+    def apply(self, u: np.ndarray) -> None:
+        self.plant.apply(self.v)
+        self.v = self.a * self.v + (1.0 - self.a) * u
+
+
+def test_first_order_lag_blocks_are_realized(robot):
+    """A force-controller lag (what diagnose's actuator_lag adds: first_order_lag input blocks)
+    is linear: the MPC realises each lag as a state and tracks the lagged plant; the same MPC
+    on the model without the lag is slower and overshoots on it."""
+    poles = [0.8, 0.6, 0.8, 0.6]
+    lagged = robot.replace(
+        input_blocks=tuple(
+            Block("first_order_lag", f"F{i}", {"pole": p}) for i, p in enumerate(poles, 1)
+        )
+    )
+    assert (
+        lagged.is_linear and to_state_space(lagged).A.shape[0] == robot.representation.n_states + 4
+    )
+    errors = {}
+    for name, model in (("lagged", lagged), ("unlagged", robot)):
+        ctrl = LinearMPC(model, weights=Weights(R=0.001))
+        Y, _, _ = closed_loop(ctrl, LaggedPlant(LinearPlant(robot), poles), step_ref(150))
+        errors[name] = float(np.sqrt(np.mean((Y[10:] - [0.4, -0.3]) ** 2)))
+        if name == "lagged":
+            assert np.max(np.abs(Y[-10:] - [0.4, -0.3])) < 1e-3
+    assert errors["lagged"] < errors["unlagged"]
+
+
 def test_subset_of_signals_and_measurement_mapping(robot):
     # Only the pan pair drives q1; the controller reads q1 from a mapping with extra signals.
     ss = robot.representation
@@ -297,7 +335,7 @@ def test_nonlinear_models_and_blocks_are_refused_by_the_linear_mpc(robot):
     with pytest.raises(OptionError, match="sparse_map"):
         LinearMPC(tendon_sparse_map())
     dz = robot.replace(input_blocks=(Block("dead_zone", "F1", {"threshold": 1.0, "center": 0.0}),))
-    with pytest.raises(OptionError, match="dead_zone"):
+    with pytest.raises(OptionError, match=r"dead_zone.*only 'delay' and 'first_order_lag'"):
         LinearMPC(dz)
     with pytest.raises(OptionError, match="sparse_map models"):
         NonlinearMPC(robot)

@@ -187,3 +187,36 @@ def test_output_terms_must_be_delayed():
                 term_coefficients=np.ones((1, 1)),
             ),
         )
+
+
+def test_lag_and_delay_blocks_have_an_exact_state_space_form():
+    """Input delays and first-order lags are linear: ``to_state_space`` realises them as states,
+    and python-control simulates that realisation to the same outputs as ``simulate`` runs the
+    blocks (from rest; the lag starts at its input's first value, here zero)."""
+    from tendonkit.realize import to_state_space
+
+    rep = ARX(
+        A=(np.array([[-1.2]]), np.array([[0.5]])),
+        B=(np.array([[0.3, -0.2]]), np.array([[0.1, 0.4]])),
+        nk=(1, 0),
+    )
+    blocks = (
+        Block("first_order_lag", "a", {"pole": 0.85}),
+        Block("delay", "b", {"samples": 3.0}),
+        Block("first_order_lag", "b", {"pole": 0.5}),
+    )
+    m = Model(
+        name="lagged", dt=0.01, inputs=(Signal("a"), Signal("b")), outputs=(Signal("y"),),
+        representation=rep, input_blocks=blocks,
+    )  # fmt: skip
+    assert m.is_linear
+    u = np.random.default_rng(4).normal(size=(300, 2))
+    u[0] = 0.0
+    ss = to_state_space(m)
+    plain = to_state_space(m.replace(input_blocks=())).A.shape[0]
+    assert ss.A.shape[0] == plain + 3 + 2  # three delay registers, two lag states
+    ref = control.forced_response(
+        control.ss(ss.A, ss.B, ss.C, ss.D, m.dt), U=u.T, X0=np.zeros(ss.A.shape[0])
+    ).outputs
+    np.testing.assert_allclose(simulate(m, u, initial="zero")[:, 0], np.ravel(ref), atol=1e-12)
+    assert not m.replace(input_blocks=(Block("play", "a", {"width": 0.1}),)).is_linear

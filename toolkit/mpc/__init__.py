@@ -2,7 +2,7 @@
 
 Two controllers share one interface and one tracking problem (:mod:`tendonkit.mpc.qp`):
 
-- :class:`LinearMPC` for every linear model (``state_space``, ``arx``, input delays): the
+- :class:`LinearMPC` for every linear model (``state_space``, ``arx``, input delays and lags): the
   exact realisation, reduced when it is not minimal, a steady-state Kalman predictor and
   integrating disturbances for offset-free tracking;
 - :class:`NonlinearMPC` for ``sparse_map`` models (SINDYc): successive linearisation along

@@ -1,7 +1,7 @@
 """Prediction models of the linear MPC: realisation, reduction, disturbance model, Kalman gain.
 
 Any linear tendonkit model (``state_space``; ``arx`` with or without an ``offset``; input
-``delay`` blocks) becomes ``x+ = A x + B u``, ``y = C x + D u + y_const`` through
+``delay`` and ``first_order_lag`` blocks, realised as states) becomes ``x+ = A x + B u``, ``y = C x + D u + y_const`` through
 :func:`tendonkit.realize.to_state_space`.  A non-minimal realisation (an ARX(8, 8) model with
 4 inputs and 2 outputs realises to 48 states, of which 16 are needed) is reduced exactly with
 python-control's ``minreal`` (slycot ``tb01pd``), or by balanced truncation to a given order.
@@ -26,7 +26,7 @@ from numpy.typing import NDArray
 
 from ..errors import OptionError
 from ..realize import to_state_space
-from ..schema import ARX, Model, StateSpace
+from ..schema import ARX, LINEAR_BLOCKS, Model, StateSpace
 from .base import _MPC, _formulation
 from .options import Bounds, Estimator, Solver, Weights, resolve_options
 from .qp import QPResult, TrackingQP
@@ -67,10 +67,10 @@ def linear_problems(model: Model) -> list[str]:
     if isinstance(rep, ARX) and rep.terms:
         problems.append(f"ARX model {model.name!r} has nonlinear terms; the linear MPC needs none.")
     for b in model.input_blocks:
-        if b.kind != "delay":
+        if b.kind not in LINEAR_BLOCKS:
             problems.append(
-                f"input block {b.kind!r} on {b.signal!r} is nonlinear; only 'delay' input blocks "
-                "are linear."
+                f"input block {b.kind!r} on {b.signal!r} is nonlinear; only 'delay' and "
+                "'first_order_lag' input blocks are linear."
             )
     for b in model.output_blocks:
         problems.append(f"output block {b.kind!r} on {b.signal!r} is not supported by the MPC.")
@@ -238,7 +238,8 @@ def predictor_gain(
 
 
 class LinearMPC(_MPC):
-    """Offset-free linear MPC for a linear model (``state_space``, ``arx``, input delays).
+    """Offset-free linear MPC for a linear model (``state_space``, ``arx``, input delays and
+    first-order lags).
 
     Parameters
     ----------

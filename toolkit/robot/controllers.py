@@ -134,7 +134,7 @@ def make_controller(
 ) -> Any:
     """The MPC for ``model``: :class:`~tendonkit.mpc.LinearMPC` or ``NonlinearMPC``.
 
-    Linear models (``state_space``, ``arx`` without terms, delay blocks) get the linear MPC,
+    Linear models (``state_space``, ``arx`` without terms, delay and lag blocks) get the linear MPC,
     ``sparse_map`` models (SINDYc) the nonlinear one; anything else raises OptionError with
     every reason.  The model's inputs are the commanded forces T_cmd1..T_cmd4, in order.
 

@@ -293,11 +293,15 @@ def map_tasks(
     shared: Any = None,
     jobs: int | None = 1,
     scheduler: str | None = None,
+    name: Callable[[int], str] | None = None,
+    done: Callable[[int], None] | None = None,
 ) -> list[Any]:
     """The values of :func:`run_tasks` in the order of the payloads; the first error raises.
 
-    For sweeps inside tendonkit (SINDYc thresholds, ARX structures): a failed task is a bug
-    there, not an outcome to tabulate.
+    For sweeps inside tendonkit (SINDYc thresholds, ARX structures, diagnose's effects): a
+    failed task is a bug there, not an outcome to tabulate.  ``name(i)`` names task ``i`` in
+    that error (default ``"Task i of n"``); ``done(i)`` is called as each task's value arrives
+    (a progress bar).
 
     Raises
     ------
@@ -307,8 +311,11 @@ def map_tasks(
     values: list[Any] = [None] * len(payloads)
     for out in run_tasks(fn, payloads, shared=shared, jobs=jobs, scheduler=scheduler):
         if out.error is not None:
-            raise SimulationError(f"Task {out.index} of {len(payloads)} failed: {out.error}")
+            what = name(out.index) if name else f"Task {out.index} of {len(payloads)}"
+            raise SimulationError(f"{what} failed: {out.error}")
         values[out.index] = out.value
+        if done is not None:
+            done(out.index)
     return values
 
 

@@ -51,13 +51,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..dataset import Dataset
-from ..errors import OptionError, PluginError, SimulationError, TendonkitError
+from ..errors import OptionError, PluginError, TendonkitError
 from ..identification import training_fit, without_training_fit
 from ..manager import effects as effect_registry
 from ..manager import identifiers
 from ..metrics import fit
 from ..output_error import refine as refine_by_simulation
-from ..parallel import run_tasks
+from ..parallel import map_tasks
 from ..predict import predict
 from ..schema import ARX, Model
 from ..simulate import aligned
@@ -627,17 +627,18 @@ def _on_workers(
     if settings.jobs == 1 or len(names) < 2:
         return None
     shared = (ctx, ref, valid, dataclasses.replace(settings, jobs=1))
-    out: list[Trial | str] = [""] * len(names)
     bar.set_description(f"diagnose: {len(names)} effects on {settings.jobs} workers")
-    try:
-        for o in run_tasks(_effect_task, list(names), shared=shared, jobs=settings.jobs):
-            if o.error is not None:  # raised in a worker: as it would have raised here
-                raise SimulationError(f"Effect {names[o.index]!r} failed: {o.error}")
-            out[o.index] = o.value
-            bar.update()
+    try:  # an effect that raised in a worker raises as it would have raised here
+        return map_tasks(
+            _effect_task,
+            list(names),
+            shared=shared,
+            jobs=settings.jobs,
+            name=lambda i: f"Effect {names[i]!r}",
+            done=lambda _i: bar.update(),
+        )
     except pickle.PicklingError:  # raised before any worker starts: nothing was counted
         return None  # a later step's structure is a closure and cloudpickle is not installed
-    return out
 
 
 def _effect_task(shared: tuple[Any, ...], name: str) -> Trial | str:

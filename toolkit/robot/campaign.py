@@ -49,6 +49,7 @@ except ImportError:  # Windows
 
 from .. import __version__
 from ..errors import OptionError, OutputError, SchemaError, raise_if
+from ..files import atomic_write, write_json
 from ..identification import is_int
 from ..parallel import LOST, Outcome, default_jobs, engine_name, run_tasks, task_problems
 from ..schema import Model
@@ -1044,7 +1045,7 @@ class _Journal:
         except OSError as exc:
             self.lock.close()
             raise OutputError(f"Cannot write the campaign journal {str(path)!r}: {exc}") from None
-        except OptionError:
+        except (OptionError, OutputError):
             self.lock.close()
             raise
 
@@ -1071,18 +1072,10 @@ class _Journal:
                     if error.startswith(LOST):  # the engine lost it: run it again
                         continue
                     self.done[int(rec["run"])] = rec  # a line cut by the interruption is skipped
-        manifest.write_text(
-            json.dumps(
-                {"fingerprint": fingerprint, "runs": n_runs, "tendonkit": __version__}, indent=1
-            )
-        )
+        write_json(manifest, {"fingerprint": fingerprint, "runs": n_runs, "tendonkit": __version__})
         # rewrite the valid lines only, so a cut line does not end up in the middle
-        tmp = path.with_suffix(".tmp")
-        with tmp.open("w", encoding="utf-8") as fh:
-            fh.write("".join(json.dumps(r) + "\n" for r in self.done.values()))
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
+        kept = "".join(json.dumps(r) + "\n" for r in self.done.values())
+        atomic_write(path, lambda tmp: tmp.write_text(kept, encoding="utf-8"))
         self.fh = path.open("a", encoding="utf-8")
 
     def write(self, rec: dict[str, Any]) -> None:

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import csv
 import itertools
-import json
 import math
 import os
 import shutil
@@ -20,6 +19,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..errors import OutputError
+from ..files import atomic_write, write_json
 from ..report import Report
 from .figures import plot_tracking
 
@@ -80,16 +80,17 @@ def write_csv(path: Path, rows: list[dict[str, Any]]) -> Path:
     columns: list[str] = []
     for r in rows:
         columns += [k for k in r if k not in columns]
-    tmp = path.with_suffix(".tmp")
-    with tmp.open("w", newline="", encoding="utf-8") as fh:
-        w = csv.DictWriter(fh, fieldnames=columns)
-        w.writeheader()
-        for r in rows:
-            w.writerow(
-                {k: ("" if isinstance(v, float) and math.isnan(v) else v) for k, v in r.items()}
-            )
-    os.replace(tmp, path)
-    return path
+
+    def write(tmp: Path) -> None:
+        with tmp.open("w", newline="", encoding="utf-8") as fh:
+            w = csv.DictWriter(fh, fieldnames=columns)
+            w.writeheader()
+            for r in rows:
+                w.writerow(
+                    {k: ("" if isinstance(v, float) and math.isnan(v) else v) for k, v in r.items()}
+                )
+
+    return atomic_write(path, write)
 
 
 def summarise(
@@ -236,21 +237,7 @@ def write_outputs(
 
 
 def _write_summary(out: Path, summary: dict[str, Any]) -> None:
-    tmp = out / "summary.json.tmp"
-    tmp.write_text(json.dumps(_json_ready(summary), indent=1, allow_nan=False))
-    os.replace(tmp, out / "summary.json")
-
-
-def _json_ready(x: Any) -> Any:
-    if isinstance(x, dict):
-        return {str(k): _json_ready(v) for k, v in x.items()}
-    if isinstance(x, list | tuple):
-        return [_json_ready(v) for v in x]
-    if isinstance(x, float) and not math.isfinite(x):
-        return None
-    if isinstance(x, np.generic):
-        return _json_ready(x.item())
-    return x
+    write_json(out / "summary.json", summary)  # strict JSON (non-finite as null), atomically
 
 
 def _canvas(w: float, h: float) -> Any:

@@ -50,6 +50,8 @@ def test_files_are_produced(demo):
         "sindyc.json",
         "diagnose/index.html",
         "diagnose/extended_model.json",
+        "diagnose_tensions/index.html",
+        "diagnose_tensions/extended_model.json",
     ):
         assert (out / name).exists(), name
     pngs = list((out / "figures").glob("*.png"))
@@ -80,6 +82,31 @@ def test_printed_table_parses_and_agrees_with_summary_and_report(demo):
     from tendonkit.registry import CAUSES
 
     assert summary["diagnosis"]["cause"] in CAUSES
+    assert summary["diagnosis_tensions"]["cause"] in CAUSES
+
+
+def test_the_diagnosis_names_what_the_plant_hides_and_the_mpc_uses_it(demo):
+    """The paper-like plant hides a force-controller lag (with the carriage's rate limit) in
+    front of the tendons and the tendons' friction behind the measured forces: the diagnosis
+    of the commanded path names the lag, that of the tensions a friction-like cause (friction,
+    or the play it looks like quasi-statically), each with a gain; the linear MPC then runs on
+    the N4SID model as the diagnosis extended it, beside the unextended one."""
+    out, stdout = demo
+    summary = json.loads((out / "summary.json").read_text())
+    commanded, tensions = summary["diagnosis"], summary["diagnosis_tensions"]
+    assert "actuator_lag" in commanded["causes"]
+    assert {"coulomb_friction", "backlash", "hysteresis"} & set(tensions["causes"])
+    for d in (commanded, tensions):
+        steps = [st for st in d["sequence"] if st["cause"] != "none"]
+        assert steps and all(st["gain"] > 0 for st in steps)
+    rows = summary["mpc"]["results"]
+    extended = [n for n in rows if n.startswith("linear MPC (N4SID + ")]
+    assert extended == ["linear MPC (N4SID + " + ", ".join(commanded["causes"]) + ")"]
+    assert rows[extended[0]]["input_bound_violations"] == 0
+    assert summary["mpc"]["extended"].startswith(extended[0])
+    assert "Diagnosis of the linear MPC's model" in stdout
+    assert "Diagnosis of the best model on the measured tensions" in stdout
+    assert extended[0] in (out / "index.html").read_text()
 
 
 def test_what_a_newcomer_reads_is_honest(demo):

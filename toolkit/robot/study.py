@@ -7,13 +7,19 @@
 2. Identify N4SID (order 8), ARX (8, 8, 1) and SINDYc (threshold by sweep); print Table I beside
    the paper's numbers.
 3. Reconstruct all six joints and the end effector; estimate the ratios from the data.
-4. Diagnose the best model: cause, extension, measured gain.
-5. Export the model (extended when a cause was named) as an FMU and check it in fmpy.
-6. Linear MPC (N4SID) and nonlinear MPC (SINDYc) on the petal in co-simulation.
+4. Diagnose both halves of the actuation chain: the linear MPC's model (N4SID) from the
+   commanded forces, where the force controllers' lag acts, and the best model from the
+   measured tendon tensions ``T1..T4``, where the tendons' friction acts; each names its causes
+   with their gains.
+5. Export the linear MPC's model (extended when a cause was named) as an FMU and check it in
+   fmpy.
+6. Linear MPC (N4SID, and N4SID extended by the diagnosis when it is linear) and nonlinear MPC
+   (SINDYc) on the petal in co-simulation: the payoff of the better model in tracking error.
 
-The inputs of every model are the *commanded* tendon forces ``u1..u4``: they are what the MPC
-sends to the robot's force controllers, so the identified models are the ones a controller can
-use (the measured forces lag the commands on this plant).
+The inputs of the identified models are the *commanded* tendon forces ``u1..u4``: they are what
+the MPC sends to the robot's force controllers, so these are the models a controller can use
+(the measured forces lag the commands on this plant).  The tensions' diagnosis is the other
+half of the chain: what happens between the measured forces and the joints.
 """
 
 from __future__ import annotations
@@ -29,9 +35,11 @@ import numpy as np
 from ..compare import compare, score
 from ..diagnose import diagnose
 from ..diagnose.report import write_report
+from ..errors import TendonkitError
 from ..files import write_json
 from ..manager import identifiers
 from ..report import Report
+from ..schema import LINEAR_BLOCKS
 from ..stepper import Stepper
 from . import protocol
 from .campaign import run_campaign, spec_from_dict
@@ -45,6 +53,8 @@ PAPER_FIT = {"sindyc": 67.74, "arx": 44.90, "n4sid": 39.12}
 PAPER_EE_ERROR_CM = 2.48
 INPUTS = ("u1", "u2", "u3", "u4")
 OUTPUTS = ("q1", "q2")
+#: The measured tendon tensions: the inputs of the mechanism's half of the actuation chain.
+TENSIONS = ("T1", "T2", "T3", "T4")
 
 
 class _Stages:
@@ -100,7 +110,19 @@ def _collect(out: Path, quick: bool, seed: int, progress: bool) -> dict[str, Any
         .to_dataset(INPUTS, OUTPUTS)
         .concat(recs["valid_circles"].to_dataset(INPUTS, OUTPUTS))
     )
-    return {"plant": plant, "config": config, "recordings": recs, "train": train, "valid": valid}
+
+    def tensions(a: str, b: str) -> Any:
+        return recs[a].to_dataset(TENSIONS, OUTPUTS).concat(recs[b].to_dataset(TENSIONS, OUTPUTS))
+
+    return {
+        "plant": plant,
+        "config": config,
+        "recordings": recs,
+        "train": train,
+        "valid": valid,
+        "train_tensions": tensions("train_circles", "train_random"),
+        "valid_tensions": tensions("valid_random", "valid_circles"),
+    }
 
 
 def _identify(train: Any, quick: bool) -> dict[str, Any]:
@@ -167,24 +189,63 @@ def _render_reconstruction(rec: dict[str, Any]) -> str:
 
 def _diagnose(
     models: dict[str, Any],
-    table: dict[str, Any],
     data: dict[str, Any],
     out: Path,
     quick: bool,
     progress: bool = False,
-) -> dict[str, Any]:
+) -> dict[str, dict[str, Any]]:
+    """Both halves of the actuation chain, each diagnosed with its causes and gains.
+
+    ``commanded``: the linear MPC's model (N4SID, commanded forces → joints), so that what it
+    names extends the model the MPC then uses (the force controllers' lag acts here).
+    ``tensions``: the best of the three identifiers on the measured tensions → joints (Table I's
+    rule on that data), where the tendons' friction acts without the lag in front of it.
+    """
+    commanded = _diagnose_one(
+        models["n4sid"],
+        "n4sid",
+        data["train"],
+        data["valid"],
+        out / "diagnose",
+        "the linear MPC's model, commanded forces u1..u4 → joints",
+        progress,
+    )
+    on_tensions = _identify(data["train_tensions"], quick)
+    table = _table(on_tensions, data["valid_tensions"])
     best = max(table["models"], key=lambda r: r["mean_fit"])["model"]
-    model = models[best]
+    tensions = _diagnose_one(
+        on_tensions[best],
+        best,
+        data["train_tensions"],
+        data["valid_tensions"],
+        out / "diagnose_tensions",
+        "the best model on the measured tensions T1..T4 → joints",
+        progress,
+    )
+    return {"commanded": commanded, "tensions": tensions}
+
+
+def _diagnose_one(
+    model: Any,
+    method: str,
+    train: Any,
+    valid: Any,
+    folder: Path,
+    what: str,
+    progress: bool,
+) -> dict[str, Any]:
     options = dict(model.provenance.options)
-    if best == "sindyc" and "threshold" in model.provenance.details:
+    if method == "sindyc" and "threshold" in model.provenance.details:
         options["threshold"] = model.provenance.details["threshold"]  # no sweep per candidate
-    result = diagnose(data["train"], data["valid"], method=best, options=options, progress=progress)
-    path = out / "diagnose" / "extended_model.json"
+    result = diagnose(train, valid, method=method, options=options, progress=progress)
+    path = folder / "extended_model.json"
     path.parent.mkdir(parents=True, exist_ok=True)
     result.extended.save(path)
-    write_report(result, data["valid"], out / "diagnose", str(path))
+    write_report(result, valid, folder, str(path))
     return {
-        "method": best,
+        "method": method,
+        "what": what,
+        "folder": folder.name,
         "result": result,
         "summary": result.to_dict(str(path)),
         "model_path": path,
@@ -194,7 +255,7 @@ def _diagnose(
 def _render_diagnosis(d: dict[str, Any]) -> str:
     s = d["summary"]
     causes = s.get("causes") or [s["cause"]]
-    lines = [f"Diagnosis of the best model ({d['method']}): causes = {', '.join(causes)}"]
+    lines = [f"Diagnosis of {d['what']} ({d['method']}): causes = {', '.join(causes)}"]
     if s["cause"] != "none":
         e = s["extended"]
         for st in s.get("sequence") or []:
@@ -293,24 +354,26 @@ def run_demo(
     )
     print(_render_reconstruction(rec))
     diag = stages.run(
-        "diagnose the best model",
-        lambda: _diagnose(models, table, data, out, quick, progress),
+        "diagnose both halves of the actuation chain (commanded forces; measured tensions)",
+        lambda: _diagnose(models, data, out, quick, progress),
     )
-    print(_render_diagnosis(diag))
-    extended = diag["result"].cause != "none"
+    print(_render_diagnosis(diag["commanded"]))
+    print(_render_diagnosis(diag["tensions"]))
+    extended = diag["commanded"]["result"].cause != "none"
     exp = stages.run(
-        "export the extended model as an FMU and check it in fmpy"
+        "export the extended N4SID model as an FMU and check it in fmpy"
         if extended
-        else "export the best model (no cause named, nothing extended) as an FMU and check it",
-        lambda: _export(diag, data["valid"], out),
+        else "export the N4SID model (no cause named, nothing extended) as an FMU and check it",
+        lambda: _export(diag["commanded"], data["valid"], out),
     )
     print(
         f"Model FMU {exp['path'].name}: fmpy validation problems: {len(exp['problems'])}; "
         f"max |FMU - tendonkit| over {exp['n_steps']} steps: {exp['max_difference']:.2e}"
     )
     mpc = stages.run(
-        "MPC on the petal in co-simulation (linear on N4SID, nonlinear on SINDYc)",
-        lambda: _mpc(models, data, out, quick),
+        "MPC on the petal in co-simulation (linear on N4SID and on its extension, nonlinear on "
+        "SINDYc)",
+        lambda: _mpc(models, data, out, quick, diag["commanded"]["result"]),
     )
     print(_render_mpc(mpc))
     camp = stages.run(
@@ -325,7 +388,8 @@ def run_demo(
         "samples": {"train": data["train"].n_samples, "valid": data["valid"].n_samples},
         "table_1": table,
         "reconstruction": rec,
-        "diagnosis": diag["summary"],
+        "diagnosis": diag["commanded"]["summary"],
+        "diagnosis_tensions": diag["tensions"]["summary"],
         "export": {k: (str(v) if isinstance(v, Path) else v) for k, v in exp.items()},
         "mpc": mpc,
         "campaign": camp,
@@ -347,7 +411,11 @@ def _fig2(data: dict[str, Any], out: Path) -> list[Path]:
     )
 
 
-def _mpc(models: dict[str, Any], data: dict[str, Any], out: Path, quick: bool) -> dict[str, Any]:
+def _mpc(
+    models: dict[str, Any], data: dict[str, Any], out: Path, quick: bool, diagnosis: Any
+) -> dict[str, Any]:
+    """The controllers on the petal; the linear MPC also on the N4SID model as the diagnosis
+    extended it, when a cause was named and the extension is linear (a delay, a lag)."""
     ref = make_reference("petal", duration=15.0 if quick else 40.0)
     plant = data["plant"]
     # The tuned defaults of the co-simulation (tendonkit.robot.controllers.DEFAULTS): Q = 1e4, R = 0.3,
@@ -355,13 +423,34 @@ def _mpc(models: dict[str, Any], data: dict[str, Any], out: Path, quick: bool) -
     results = {
         "open-loop kinematic": open_loop(plant, ref),
         "linear MPC (N4SID)": run(plant, ref, make_controller(models["n4sid"]), name="linear MPC"),
-        "nonlinear MPC (SINDYc)": run(
-            plant, ref, make_controller(models["sindyc"]), name="nonlinear MPC"
-        ),
     }
+    note = "no cause named: the N4SID model is not extended"
+    if diagnosis.cause != "none":
+        # The linear MPC takes linear blocks (delays, lags); a rate limit found with a lag (the
+        # force controller's carriage speed) is an actuator limit it leaves out, as it leaves
+        # out the tendons' saturation.
+        ext = diagnosis.extended
+        kept = tuple(b for b in ext.input_blocks if b.kind in LINEAR_BLOCKS)
+        left = sorted({b.kind for b in ext.input_blocks if b.kind not in LINEAR_BLOCKS})
+        name = f"linear MPC (N4SID + {', '.join(diagnosis.causes)})"
+        try:
+            ctrl = make_controller(ext.replace(input_blocks=kept))
+        except TendonkitError as exc:  # a nonlinear extension: the linear MPC cannot use it
+            note = f"the extended N4SID model is not run: {exc}"
+        else:
+            results[name] = run(plant, ref, ctrl, name="linear MPC, extended")
+            note = f"{name}: the N4SID model as the diagnosis extended it" + (
+                f", its linear blocks only ({', '.join(left)} left out: an actuator limit the "
+                "linear MPC does not model)"
+                if left
+                else ""
+            )
+    results["nonlinear MPC (SINDYc)"] = run(
+        plant, ref, make_controller(models["sindyc"]), name="nonlinear MPC"
+    )
     summaries = {k: r.summary() for k, r in results.items()}
     figures = [str(p) for p in plot_tracking(results, out / "figures")]
-    return {"reference": ref.name, "results": summaries, "figures": figures}
+    return {"reference": ref.name, "results": summaries, "figures": figures, "extended": note}
 
 
 #: Plant draws of the demo's campaign.
@@ -426,15 +515,16 @@ def _render_campaign(c: dict[str, Any]) -> str:
 def _render_mpc(mpc: dict[str, Any]) -> str:
     lines = [
         "MPC on the petal (co-simulation with the plant FMU):",
-        f"  {'controller':<24} {'RMS q1 [mrad]':>14} {'RMS q2 [mrad]':>14} {'EE [cm]':>8} {'solve med/p99 [ms]':>20} {'fallbacks':>9}",
+        f"  {'controller':<36} {'RMS q1 [mrad]':>14} {'RMS q2 [mrad]':>14} {'EE [cm]':>8} {'solve med/p99 [ms]':>20} {'fallbacks':>9}",
     ]
     for name, s in mpc["results"].items():
         rms = s["rms_error_rad"]
         st = s.get("solve_time_ms")
         solve = f"{st['median']:.2f}/{st['p99']:.2f}" if st else "-"
         lines.append(
-            f"  {name:<24} {1e3 * rms['q1']:>14.2f} {1e3 * rms['q2']:>14.2f} {s['mean_ee_error_cm']:>8.2f} {solve:>20} {s['fallbacks']:>9}"
+            f"  {name:<36} {1e3 * rms['q1']:>14.2f} {1e3 * rms['q2']:>14.2f} {s['mean_ee_error_cm']:>8.2f} {solve:>20} {s['fallbacks']:>9}"
         )
+    lines.append(f"  ({mpc['extended']})")
     return "\n".join(lines)
 
 
@@ -495,13 +585,19 @@ def _write_report(
             rep.figure(
                 f, f"{name}: {'six joints' if 'joints' in Path(f).name else 'end-effector path'}"
             )
-    rep.heading("Diagnosis of the best model")
-    rep.pre(_render_diagnosis(diag))
-    rep.text("Full diagnosis report with figures: diagnose/index.html", note=True)
-    rep.figure(
-        out / "diagnose" / "outputs_before_after.png",
-        "Validation: measured, baseline and extended model.",
+    rep.heading("Diagnosis of both halves of the actuation chain")
+    rep.text(
+        "The linear MPC's model (N4SID) from the commanded forces, where the force controllers' "
+        "lag acts; and the best model from the measured tensions, where the tendons' friction "
+        "acts. Each names what is significant on the validation data, in order, with its gain."
     )
+    for d in (diag["commanded"], diag["tensions"]):
+        rep.pre(_render_diagnosis(d))
+        rep.text(f"Full diagnosis report with figures: {d['folder']}/index.html", note=True)
+        rep.figure(
+            out / d["folder"] / "outputs_before_after.png",
+            f"Validation ({d['what']}): measured, baseline and extended model.",
+        )
     rep.heading("FMU export")
     e = summary["export"]
     rep.text(
@@ -535,6 +631,7 @@ def _write_report(
             for n, r in m["results"].items()
         ],
     )
+    rep.text(m["extended"], note=True)
     for f in m["figures"]:
         rep.figure(f, "Joint tracking and end-effector path, reference vs achieved.")
     rep.heading("Campaign: the linear MPC across plant draws")

@@ -14,7 +14,7 @@ from tendonkit.cli.diagnose import render_diagnosis
 from tendonkit.dataset import Dataset, Experiment
 from tendonkit.diagnose import diagnose
 from tendonkit.diagnose.clip import atom_test
-from tendonkit.diagnose.engine import _encompassing, _name_cause
+from tendonkit.diagnose.engine import Settings, _encompassing, _name_cause, _refined_or_tested
 from tendonkit.diagnose.findings import Finding
 from tendonkit.diagnose.report import write_report
 from tendonkit.diagnose.stats import autocorrelation_time, holm, loss_test
@@ -643,3 +643,35 @@ def test_a_gain_that_is_not_significant_says_how_much_more_data_would_show_it():
     }
     (note,) = evidence_notes(summary)
     assert "times as much validation data would show it" in note
+
+
+def test_a_refinement_that_loses_validation_fit_gives_way_to_the_tested_extension():
+    """A refined extension that simulates the validation data worse than the tested one by more
+    than ``min_gain`` points is not kept: the tested extension (and its builder) is, and its
+    notes say why; a refinement that loses less, or gains, is kept."""
+    train, valid = _arx_data(21, 3000), _arx_data(22, 2000)
+    tested = _arx_model(train)
+    rep = tested.representation
+    worse = tested.replace(
+        representation=dataclasses.replace(rep, B=tuple(0.8 * b for b in rep.B))
+    )  # a "refinement" that lost about a fifth of the input gain
+    settings = Settings(
+        alpha=0.01, min_relative_gain=0.0, min_gain=0.5, tie_ratio=0.85, seed=0,
+        effects=(), options={}, fallback=False,
+    )  # fmt: skip
+    model, build = _refined_or_tested(worse, "refined", tested, "tested", valid, settings)
+    assert build == "tested" and model.representation == rep
+    assert "simulated the validation data worse (mean fit " in model.provenance.notes
+    assert _refined_or_tested(tested, "refined", worse, "tested", valid, settings)[1] == "refined"
+    slightly = tested.replace(
+        representation=dataclasses.replace(rep, B=tuple(0.9995 * b for b in rep.B))
+    )
+    assert (
+        _refined_or_tested(slightly, "refined", tested, "tested", valid, settings)[1] == "refined"
+    )
+
+
+def _arx_model(data):
+    from tendonkit.manager import identifiers
+
+    return identifiers().get("arx").create(na=2, nb=1).identify(data)

@@ -406,11 +406,10 @@ def _tall_trust_region(
             Delta = Delta_new
         if actual_reduction > 0:
             x, f, cost = x_new, f_new, cost_new
-            if done:
-                break
-            J = jac(x)
-            g = J.T @ f
-            scale_inv = np.maximum(scale_inv, np.linalg.norm(J, axis=0))
+            if not done:  # the Jacobian of the next step
+                J = jac(x)
+                g = J.T @ f
+                scale_inv = np.maximum(scale_inv, np.linalg.norm(J, axis=0))
         if done:
             break
     return x, f, nfev

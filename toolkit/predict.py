@@ -131,7 +131,7 @@ def _one_step_states(rep: StateSpace, K: FloatArray, u: FloatArray, y: FloatArra
     AK, BK = A - K @ C, B - K @ D
     drive = np.vstack([u @ BK.T + y @ K.T, np.zeros((1, rep.n_states))])
     x0 = np.asarray(estimate_x0(rep, u, y), dtype=float).ravel()
-    return np.asarray(state_loop(np.ascontiguousarray(AK, dtype=float), drive, x0.copy()))
+    return np.asarray(state_loop(np.ascontiguousarray(AK, dtype=float), drive, x0))
 
 
 def fitted_kalman_gain(

@@ -14,7 +14,7 @@ from tendonkit.cli.diagnose import render_diagnosis
 from tendonkit.dataset import Dataset, Experiment
 from tendonkit.diagnose import diagnose
 from tendonkit.diagnose.clip import atom_test
-from tendonkit.diagnose.engine import Settings, _encompassing, _name_cause, _refined_or_tested
+from tendonkit.diagnose.engine import Settings, _encompassing, _name_cause
 from tendonkit.diagnose.findings import Finding
 from tendonkit.diagnose.report import write_report
 from tendonkit.diagnose.stats import autocorrelation_time, holm, loss_test
@@ -645,30 +645,46 @@ def test_a_gain_that_is_not_significant_says_how_much_more_data_would_show_it():
     assert "times as much validation data would show it" in note
 
 
-def test_a_refinement_that_loses_validation_fit_gives_way_to_the_tested_extension():
+def test_a_refinement_that_loses_validation_fit_gives_way_to_the_tested_extension(monkeypatch):
     """A refined extension that simulates the validation data worse than the tested one by more
     than ``min_gain`` points is not kept: the tested extension (and its builder) is, and its
     notes say why; a refinement that loses less, or gains, is kept."""
+    from tendonkit.diagnose import engine
+    from tendonkit.diagnose.effect import simulate_all
+    from tendonkit.metrics import fit
+
     train, valid = _arx_data(21, 3000), _arx_data(22, 2000)
     tested = _arx_model(train)
     rep = tested.representation
     worse = tested.replace(
         representation=dataclasses.replace(rep, B=tuple(0.8 * b for b in rep.B))
     )  # a "refinement" that lost about a fifth of the input gain
+    slightly = tested.replace(
+        representation=dataclasses.replace(rep, B=tuple(0.9995 * b for b in rep.B))
+    )
     settings = Settings(
         alpha=0.01, min_relative_gain=0.0, min_gain=0.5, tie_ratio=0.85, seed=0,
         effects=(), options={}, fallback=False,
     )  # fmt: skip
-    model, build = _refined_or_tested(worse, "refined", tested, "tested", valid, settings)
-    assert build == "tested" and model.representation == rep
+
+    def named(model):
+        finding = _sig("e", 1.0, 1)
+        f = fit(valid.y, simulate_all(model, valid))
+        return dataclasses.replace(finding, model=model, fit={"pos": float(f[0])})
+
+    def refined_to(result):
+        monkeypatch.setattr(engine, "refine_by_simulation", lambda m, data, max_nfev: result)
+
+    refined_to(worse)
+    model, _, fit_now = engine.refine_named(named(tested), None, None, train, valid, settings)
+    assert model.representation == rep and fit_now == named(tested).fit
     assert "simulated the validation data worse (mean fit " in model.provenance.notes
-    assert _refined_or_tested(tested, "refined", worse, "tested", valid, settings)[1] == "refined"
-    slightly = tested.replace(
-        representation=dataclasses.replace(rep, B=tuple(0.9995 * b for b in rep.B))
-    )
-    assert (
-        _refined_or_tested(slightly, "refined", tested, "tested", valid, settings)[1] == "refined"
-    )
+    refined_to(tested)
+    model, _, _ = engine.refine_named(named(worse), None, None, train, valid, settings)
+    assert model is tested
+    refined_to(slightly)
+    model, _, _ = engine.refine_named(named(tested), None, None, train, valid, settings)
+    assert model is slightly
 
 
 def _arx_model(data):

@@ -9,7 +9,7 @@ from typing import Any
 
 from ..dataset import Dataset
 from ..diagnose import diagnose
-from ..diagnose.findings import evidence_notes
+from ..diagnose.findings import evidence_notes, experiment_lead
 from ..diagnose.report import write_report
 from ..errors import DataError
 from ..manager import effects
@@ -259,8 +259,7 @@ def render_diagnosis(summary: dict[str, Any]) -> str:
     if summary.get("ambiguous"):
         lines.append(summary["ambiguous"]["statement"])
         lines.append(
-            ("to confirm it: " if summary["ambiguous"].get("decided") else "to tell them apart: ")
-            + summary["ambiguous"]["experiment"]
+            f"{experiment_lead(summary['ambiguous'])}: {summary['ambiguous']['experiment']}"
         )
     lines.append("findings (validation gain, p-value adjusted for trying every effect):")
     for f in summary["findings"]:

@@ -38,7 +38,8 @@ def _signals(model: Model, e: Experiment) -> dict[str, FloatArray]:
     }
 
 
-def _note(model: Model, text: str) -> Model:
+def with_note(model: Model, text: str) -> Model:
+    """``model`` with ``text`` appended to its provenance notes."""
     prov = dataclasses.replace(
         model.provenance,
         notes=(model.provenance.notes + "; " if model.provenance.notes else "") + text,
@@ -77,7 +78,7 @@ def extend_with_terms(
         new = _extend_ss_by_refit(model, rep, data, terms, refit)
     else:
         new = _extend_ss(model, rep, data, terms)
-    return _note(new, note) if note else new
+    return with_note(new, note) if note else new
 
 
 def _extend_ss_by_refit(

@@ -353,7 +353,7 @@ def evidence_notes(summary: dict[str, Any]) -> list[str]:
             ),
             None,
         )
-        if top is None or not math.isfinite(top["gain"]):
+        if top is None:
             return []
         more = _more_data(top, summary)
         if not more:
@@ -461,6 +461,12 @@ def _more_data(finding: dict[str, Any], summary: dict[str, Any]) -> str:
         f"; about {factor:.1f} times as much validation data would show it if the gain holds "
         "(an estimate from its test statistic)"
     )
+
+
+def experiment_lead(ambiguous: dict[str, Any]) -> str:
+    """How a tie's experiment is introduced: to confirm a tie the data decided, or to tell
+    the two apart."""
+    return "to confirm it" if ambiguous.get("decided") else "to tell them apart"
 
 
 def _mean(d: dict[str, float]) -> float:

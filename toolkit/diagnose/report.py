@@ -17,7 +17,7 @@ from ..figures import (
 from ..report import Report
 from . import Diagnosis
 from .engine import simulate_all
-from .findings import evidence_notes
+from .findings import evidence_notes, experiment_lead
 
 
 def explaining_signal(cause: str, data: Dataset, j: int) -> tuple[np.ndarray, str]:
@@ -72,13 +72,8 @@ def write_report(
             rep.text(note[0].upper() + note[1:])
     if diagnosis.ambiguous:
         rep.text(
-            diagnosis.ambiguous["statement"]
-            + (
-                " Experiment to confirm it: "
-                if diagnosis.ambiguous.get("decided")
-                else " Experiment to tell them apart: "
-            )
-            + diagnosis.ambiguous["experiment"]
+            f"{diagnosis.ambiguous['statement']} Experiment "
+            f"{experiment_lead(diagnosis.ambiguous)}: {diagnosis.ambiguous['experiment']}"
         )
     if len(d["sequence"]) > 1:
         rep.heading("Sequence of causes")

@@ -221,7 +221,7 @@ def write_outputs(
     """``runs.csv``, ``summary.json`` and (``report``) ``figures/`` and ``index.html``."""
     try:
         write_csv(out / "runs.csv", rows)
-        _write_summary(out, summary)  # before anything that simulates again
+        write_json(out / "summary.json", summary)  # before anything that simulates again
         figures: list[tuple[Path, str]] = []
         if report:
             folder = out / "figures"
@@ -230,14 +230,10 @@ def write_outputs(
             figures += _distribution_figure(spec, rows, folder)
             figures += _worst_figures(summary, shared, payloads, simulate, folder)
             summary["figures"] = [str(p) for p, _ in figures]
-            _write_summary(out, summary)
+            write_json(out / "summary.json", summary)
             _html(spec, out, summary, figures)
     except OSError as exc:
         raise OutputError(f"Cannot write the campaign's outputs in {str(out)!r}: {exc}") from None
-
-
-def _write_summary(out: Path, summary: dict[str, Any]) -> None:
-    write_json(out / "summary.json", summary)  # strict JSON (non-finite as null), atomically
 
 
 def _canvas(w: float, h: float) -> Any:

@@ -100,28 +100,20 @@ def _collect(out: Path, quick: bool, seed: int, progress: bool) -> dict[str, Any
         rec = collect(prot, plant=plant, seed=seed + i, progress=progress)
         rec.to_csv(out / "data" / f"{name}.csv")
         recs[name] = rec
-    train = (
-        recs["train_circles"]
-        .to_dataset(INPUTS, OUTPUTS)
-        .concat(recs["train_random"].to_dataset(INPUTS, OUTPUTS))
-    )
-    valid = (
-        recs["valid_random"]
-        .to_dataset(INPUTS, OUTPUTS)
-        .concat(recs["valid_circles"].to_dataset(INPUTS, OUTPUTS))
-    )
 
-    def tensions(a: str, b: str) -> Any:
-        return recs[a].to_dataset(TENSIONS, OUTPUTS).concat(recs[b].to_dataset(TENSIONS, OUTPUTS))
+    def joined(inputs: tuple[str, ...], first: str, second: str) -> Any:
+        return (
+            recs[first].to_dataset(inputs, OUTPUTS).concat(recs[second].to_dataset(inputs, OUTPUTS))
+        )
 
     return {
         "plant": plant,
         "config": config,
         "recordings": recs,
-        "train": train,
-        "valid": valid,
-        "train_tensions": tensions("train_circles", "train_random"),
-        "valid_tensions": tensions("valid_random", "valid_circles"),
+        "train": joined(INPUTS, "train_circles", "train_random"),
+        "valid": joined(INPUTS, "valid_random", "valid_circles"),
+        "train_tensions": joined(TENSIONS, "train_circles", "train_random"),
+        "valid_tensions": joined(TENSIONS, "valid_random", "valid_circles"),
     }
 
 

@@ -71,7 +71,7 @@ FMI_HEADERS = (
     "fmi3PlatformTypes.h",
 )
 RESOURCE = "model.tkm"
-MAGIC, FORMAT = 7318.2026, 2.0  # tendonkit_runtime.h
+MAGIC, FORMAT = 7318.2026, 3.0  # tendonkit_runtime.h
 _LIMIT = 100_000  # the runtime's bound on counts and lags
 #: Part of the binaries' cache key: change it with the compiler commands of :func:`_compile`.
 _BUILD_RECIPE = "2"
@@ -89,6 +89,7 @@ _BLOCK_CODES = {
     "play": 3,
     "first_order_lag": 4,
     "rate_limit": 5,
+    "polynomial": 6,
 }
 _FN_CODES = {name: i for i, name in enumerate(FUNCTIONS)}
 #: The factor functions the C runtime implements (``fn()`` in tendonkit_runtime.c).
@@ -133,6 +134,7 @@ def _blocks(blocks: Sequence[Block], names: Sequence[str]) -> list[float]:
     out: list[float] = [float(len(blocks))]
     for b in blocks:
         p = b.params
+        params: tuple[float, ...]
         if b.kind == "delay":
             n, a = split_delay(float(p["samples"]))
             params = (float(n), float(a))
@@ -140,11 +142,14 @@ def _blocks(blocks: Sequence[Block], names: Sequence[str]) -> list[float]:
             params = (float(p["threshold"]), float(p["center"]))
         elif b.kind == "saturation":
             params = (float(p["lower"]), float(p["upper"]))
+        elif b.kind == "polynomial":
+            params = (float(p["c0"]), float(p["c1"]), float(p["c2"]), float(p["c3"]))
         else:
             params = (
                 float(p[{"play": "width", "first_order_lag": "pole"}.get(b.kind, "rate")]),
                 0.0,
             )
+        params = (*params, 0.0, 0.0)[:4]  # every block row: signal, kind and four numbers
         out += [float(list(names).index(b.signal)), float(_BLOCK_CODES[b.kind]), *params]
     return out
 

@@ -28,6 +28,7 @@ from tendonkit.diagnose import (
     Extension,
     ResidualAnalysis,
     extend_with_terms,
+    fit_wiener,
     refit_with_input_blocks,
 )
 from tendonkit.hookspecs import hookimpl
@@ -467,6 +468,28 @@ class StaticNonlinearity(_TermEffect):
                 absu + wiener,
             ),
         ]
+
+    def builders(self, ctx: Context) -> list[tuple[dict[str, Any], Callable[[Dataset], Model]]]:
+        """The term candidates, and a Wiener structure: a cubic curve after the model.
+
+        The terms put the curve on past signals inside the recursion (a NARX form).  A curve
+        *after* the dynamics — a rectifying speed sensor, a diode at the output — is not a
+        function of past outputs, whose values it has already bent: it acts on the model's
+        inner signal, which is not measured.  The Wiener candidate is the baseline structure
+        fitted on the data, simulated, and a ``polynomial`` output block fitted by least
+        squares from that inner signal to the measured output (the curve's share of the
+        nonlinearity: the linear part is not re-estimated here; a named extension is refined
+        by simulation error, all of it).
+        """
+        cands = super().builders(ctx)
+        if not ctx.baseline.output_blocks:
+            cands.append(
+                (
+                    {"structure": "Wiener", "curve": "cubic output polynomial"},
+                    lambda d: fit_wiener(ctx.refit, d),
+                )
+            )
+        return cands
 
     def signature(
         self, ctx: Context, baseline: Model, valid: Dataset, res: ResidualAnalysis

@@ -53,6 +53,7 @@ def _blocks(rng, names: list[str]) -> tuple[Block, ...]:
                     "play",
                     "first_order_lag",
                     "rate_limit",
+                    "polynomial",
                 ]
             )
         )
@@ -63,6 +64,12 @@ def _blocks(rng, names: list[str]) -> tuple[Block, ...]:
             "play": {"width": float(rng.uniform(0.01, 0.3))},
             "first_order_lag": {"pole": float(rng.uniform(0, 0.9))},
             "rate_limit": {"rate": float(rng.uniform(0.01, 0.3))},
+            "polynomial": {
+                "c0": 0.1,
+                "c1": float(rng.uniform(0.5, 1.5)),
+                "c2": float(rng.uniform(-0.3, 0.3)),
+                "c3": float(rng.uniform(-0.1, 0.1)),
+            },
         }.get(kind)
         if params is not None:
             out.append(Block(kind, name, params))

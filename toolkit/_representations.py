@@ -26,6 +26,7 @@ BLOCK_KINDS: dict[str, tuple[str, ...]] = {
     "play": ("width",),
     "first_order_lag": ("pole",),
     "rate_limit": ("rate",),
+    "polynomial": ("c0", "c1", "c2", "c3"),
 }
 #: The block kinds that are linear (a model whose blocks are all of these has a state-space form).
 LINEAR_BLOCKS = frozenset({"delay", "first_order_lag"})
@@ -52,7 +53,9 @@ class Block:
     - ``saturation``: clip to [``lower``, ``upper``];
     - ``play``: backlash/play operator of half-width ``width`` (stateful, starts at the signal);
     - ``first_order_lag``: ``v[k+1] = p v[k] + (1-p) s[k]``, ``pole`` in [0, 1);
-    - ``rate_limit``: ``v[k] = v[k-1] + clip(s[k] - v[k-1], -rate, rate)``, ``rate`` > 0 per sample.
+    - ``rate_limit``: ``v[k] = v[k-1] + clip(s[k] - v[k-1], -rate, rate)``, ``rate`` > 0 per sample;
+    - ``polynomial``: a static curve ``v = c0 + c1 s + c2 s^2 + c3 s^3`` (on an output: a Wiener
+      model's curve or a sensor's; on an input: a Hammerstein model's).
     """
 
     kind: str

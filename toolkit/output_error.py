@@ -44,7 +44,7 @@ from .errors import SchemaError
 from .identification import training_fit
 from .regression import r_factor
 from .schema import ARX, Block, Model, SparseMap, StateSpace
-from .simulate import _apply_blocks, aligned, simulate
+from .simulate import _apply_blocks, aligned, initial_span, inner_outputs, simulate
 from .terms import CompiledTerms, Term
 
 FloatArray = NDArray[np.float64]
@@ -455,12 +455,20 @@ def _tr_step(
     return p * (Delta / float(np.linalg.norm(p))), alpha
 
 
+def exact_jacobian(model: Model) -> bool:
+    """Whether :func:`refine` computes ``model``'s Jacobian by forward sensitivities (one pass,
+    whatever the number of coefficients) rather than by a simulation per parameter."""
+    return _arx_sensitivity_applies(model, "estimate")
+
+
 def _arx_sensitivity_applies(model: Model, initial: str) -> bool:
     rep = model.representation
     return (
         isinstance(rep, ARX)
         and initial == "estimate"
-        and not model.output_blocks
+        # a curve after the model (Wiener): chain rule through the curve, one per output
+        and all(b.kind == "polynomial" for b in model.output_blocks)
+        and len({b.signal for b in model.output_blocks}) == len(model.output_blocks)
         and not any(t.stateful for t in rep.terms)
         and not tied_terms(rep, model.output_names)
     )
@@ -530,8 +538,20 @@ def _arx_jacobian(
                 J = np.ascontiguousarray(ct.jacobian(values)[:, qs, :])
         return Phi, J
 
+    # The parameter vector after the coefficients (``_codec``): the input blocks' free
+    # parameters, then the output curves' c0..c3 (in the vector only when blocks are refined).
+    n_in = sum(
+        1
+        for b in model.input_blocks
+        for name in b.params
+        if (b.kind, name) not in FIXED_BLOCK_PARAMS and abs(b.params[name]) < 1e299
+    )
+    n_curve = 4 * len(model.output_blocks)
+
     def jac(theta: FloatArray) -> FloatArray:
         m = decode(theta)
+        n_in_j = n_in if theta.size > n_lin else 0  # blocks=False: no block parameters
+        curve_params = n_curve > 0 and theta.size == n_lin + n_in + n_curve
         rep = m.representation
         assert isinstance(rep, ARX)
         sims, r0 = run(theta)
@@ -540,28 +560,48 @@ def _arx_jacobian(
         coef = np.zeros((nt, ny)) if rep.term_coefficients is None else rep.term_coefficients
         A = np.array(rep.A).reshape(len(rep.A), ny, ny) if rep.A else np.zeros((0, ny, ny))
         blocks: list[FloatArray] = []
+        curves = [(outputs.index(b.signal), b) for b in m.output_blocks]
+        inner = m.replace(output_blocks=()) if curves else m
         with np.errstate(all="ignore"):
             for e, ys in zip(data.experiments, sims, strict=True):
                 N = e.u.shape[0]
                 start = min(L, N)
                 ub = _apply_blocks(m.input_blocks, m.input_names, e.u, True)
                 Up = np.vstack([np.repeat(ub[:1], L, axis=0), ub])
-                Yp = np.vstack([np.repeat(e.y[:1], L, axis=0), ys])
+                y_meas = e.y
+                if curves:  # the inner signal, started from the outputs taken back
+                    y_meas = inner_outputs(m, e.y, initial_span(m))
+                    ys = simulate(inner, e.u, y=y_meas, initial="estimate")
+                Yp = np.vstack([np.repeat(y_meas[:1], L, axis=0), ys])
                 Phi, J = regressors(rep, Up, Yp, N)
                 Phi[:start] = 0.0  # the measured history does not depend on the parameters
                 S = arx_sensitivity(
                     Phi, A, np.ascontiguousarray(coef, dtype=float), J, qcol, qlag, start, L
                 )
-                blocks.append((-S[L:] / scale[None, :, None]).reshape(N * ny, -1))
+                Sx = S[L:]
+                powers = np.zeros((N, ny, 4 * len(curves)))
+                for k, (j, b) in enumerate(curves):  # d f(x) = f'(x) dx, d f / d c_i = x^i
+                    c = b.params
+                    x = ys[:, j]
+                    Sx[:, j, :] *= (c["c1"] + x * (2.0 * c["c2"] + 3.0 * c["c3"] * x))[:, None]
+                    powers[:, j, 4 * k : 4 * k + 4] = np.vander(x, 4, increasing=True)
+                if curve_params:
+                    Sx = np.concatenate([Sx, powers], axis=2)
+                blocks.append((-Sx / scale[None, :, None]).reshape(N * ny, -1))
         out = np.vstack(blocks)
-        if theta.size > n_lin:  # the blocks' parameters: forward differences
-            extra = np.empty((out.shape[0], theta.size - n_lin))
-            for col, p in enumerate(range(n_lin, theta.size)):
+        n_exact = n_lin + (4 * len(curves) if curve_params else 0)
+        if curve_params:  # the curves' columns go last, after the input blocks' parameters
+            out = np.hstack([out[:, :n_lin], np.zeros((out.shape[0], n_in_j)), out[:, n_lin:]])
+        elif theta.size > n_lin:
+            out = np.hstack([out, np.zeros((out.shape[0], theta.size - n_lin))])
+        if theta.size > n_exact:  # the other blocks' parameters: forward differences
+            extra = np.empty((out.shape[0], theta.size - n_exact))
+            for col, p in enumerate(range(n_lin, n_lin + theta.size - n_exact)):
                 h = 1.4901161193847656e-08 * max(1.0, abs(float(theta[p])))
                 step = theta.copy()
                 step[p] += h
                 extra[:, col] = (run(step)[1] - r0) / h
-            out = np.hstack([out, extra])
+            out[:, n_lin : n_lin + extra.shape[1]] = extra
         return np.where(np.isfinite(out), out, 0.0)
 
     return jac

@@ -20,6 +20,7 @@ from .simulate import (
     _apply_blocks,
     _check_u,
     estimate_x0,
+    inner_outputs,
     ss_theta_measured,
 )
 from .terms import CompiledTerms
@@ -38,7 +39,8 @@ def predict(model: Model, u: FloatArray, y: FloatArray, k: int = 1) -> FloatArra
     Parameters
     ----------
     model : Model
-        Any representation without output blocks.
+        Any representation; output blocks only if they are all ``polynomial`` curves (a
+        Wiener model: its inner signal is predicted from the outputs taken back through them).
     u, y : array
         Measured inputs (n, nu) and outputs (n, ny).
     k : int
@@ -49,6 +51,13 @@ def predict(model: Model, u: FloatArray, y: FloatArray, k: int = 1) -> FloatArra
     y = y_checked
     if k < 1:
         raise DataError(f"The prediction horizon k must be >= 1, found {k}.")
+    if model.output_blocks and all(b.kind == "polynomial" for b in model.output_blocks):
+        # A Wiener model: the representation predicts its inner signal from the measured
+        # outputs taken back through the curves, and the curves give the outputs.
+        inner = model.replace(output_blocks=())
+        return _apply_blocks(
+            model.output_blocks, model.output_names, predict(inner, u, inner_outputs(model, y), k)
+        )
     ub = _apply_blocks(model.input_blocks, model.input_names, u)
     rep = model.representation
     if isinstance(rep, StateSpace) and rep.terms:

@@ -74,6 +74,8 @@ def apply_block(block: Block, s: FloatArray, compiled: bool = True) -> FloatArra
                 _kernel.rate_loop(np.ascontiguousarray(s, dtype=float), float(p["rate"]))
             )
         return rate_limiter(s, p["rate"])
+    if block.kind == "polynomial":
+        return np.asarray(p["c0"] + s * (p["c1"] + s * (p["c2"] + s * p["c3"])))
     raise SimulationError(f"Unknown block kind {block.kind!r}.")  # pragma: no cover
 
 
@@ -123,6 +125,66 @@ def _apply_blocks(
         j = names.index(b.signal)
         out[:, j] = apply_block(b, out[:, j], compiled)
     return out
+
+
+def curve_inverse(block: Block, y: FloatArray, iterations: int = 60) -> FloatArray:
+    """The inner signal ``s`` that a ``polynomial`` block maps to ``y``, sample by sample.
+
+    Levenberg–Marquardt on ``(f(s) - y)^2`` from ``s = y``, every step accepted only where it
+    lowers the misfit: the solution of ``f(s) = y`` reached downhill from the identity where
+    there are several, the curve's extremum where ``y`` lies beyond it.  The measured outputs
+    of a Wiener model taken back to its inner signal, from which the representation's initial
+    state is estimated.
+    """
+    p = block.params
+    c0, c1, c2, c3 = (float(p[k]) for k in ("c0", "c1", "c2", "c3"))
+    y = np.asarray(y, dtype=float)
+
+    def curve(v: FloatArray) -> FloatArray:
+        return np.asarray(c0 + v * (c1 + v * (c2 + v * c3)))
+
+    s = y.copy()
+    r = curve(s) - y
+    damping = np.full(s.shape, 1e-3 * max(c1 * c1 + c2 * c2 + c3 * c3, 1e-300))
+    with np.errstate(over="ignore", invalid="ignore"):
+        for _ in range(iterations):
+            d = c1 + s * (2.0 * c2 + 3.0 * s * c3)
+            trial = s - r * d / (d * d + damping)
+            r_trial = curve(trial) - y
+            better = np.abs(r_trial) < np.abs(r)
+            s = np.where(better, trial, s)
+            r = np.where(better, r_trial, r)
+            damping = np.where(better, damping * 0.1, damping * 10.0)
+            if np.all(np.abs(r) <= 1e-13 * (np.abs(y) + 1.0)):
+                break  # every sample on the curve (otherwise: on to the extremum)
+    return np.asarray(s)
+
+
+def inner_outputs(model: Model, y: FloatArray, samples: int | None = None) -> FloatArray:
+    """Measured outputs taken back through the output blocks' static curves (the others as
+    they are: a clip or a play leaves the signal it passes unchanged).
+
+    ``samples``: only the first ones (those an initial state is estimated from); the rest are
+    returned as measured.
+    """
+    out = np.array(y, dtype=float)
+    names = model.output_names
+    n = out.shape[0] if samples is None else min(samples, out.shape[0])
+    for b in reversed(model.output_blocks):
+        if b.kind == "polynomial":
+            j = names.index(b.signal)
+            out[:n, j] = curve_inverse(b, out[:n, j])
+    return out
+
+
+def initial_span(model: Model, window: int | None = None) -> int:
+    """How many leading output samples ``initial="estimate"`` reads (at most)."""
+    rep = model.representation
+    if isinstance(rep, StateSpace):
+        return window or max(10 * rep.n_states, 50)
+    if isinstance(rep, ARX):
+        return arx_max_lag(rep, len(model.inputs))
+    return max(window or 1, 1)
 
 
 def _check_u(model: Model, u: Any, y: Any) -> tuple[FloatArray, FloatArray | None]:
@@ -221,6 +283,8 @@ def simulate(
         raise DataError(f"init_window must be a positive number of samples, found {init_window!r}.")
     fast = engine == "compiled"
     ub = _apply_blocks(model.input_blocks, model.input_names, u, fast)
+    if y is not None and any(b.kind == "polynomial" for b in model.output_blocks):
+        y = inner_outputs(model, y, initial_span(model, init_window))
     rep = model.representation
     # A diverging simulation overflows on its way to NaN; that is reported through the NaN
     # outputs (and a fit of -inf), not through floating-point warnings.
@@ -234,12 +298,20 @@ def simulate(
         else:
             ys = _sim_sparse(model, rep, ub, y, initial, fast)
     if np.all(np.isfinite(ys)):
-        return _apply_blocks(model.output_blocks, model.output_names, ys, fast)
+        with np.errstate(over="ignore", invalid="ignore"):
+            out = _apply_blocks(model.output_blocks, model.output_names, ys, fast)
+        if np.all(np.isfinite(out)):
+            return out
+        bad = int(np.argmax(~np.all(np.isfinite(out), axis=1)))  # a curve overflowed
+        out[bad:] = np.nan
+        return out
     # Diverged: nothing from the first non-finite sample on is meaningful, also after an
     # output block (a play operator would otherwise hold its last finite value).
     bad = int(np.argmax(~np.all(np.isfinite(ys), axis=1)))
     ys[bad:] = np.nan
-    out = _apply_blocks(model.output_blocks, model.output_names, ys, fast)
+    with np.errstate(over="ignore", invalid="ignore"):
+        out = _apply_blocks(model.output_blocks, model.output_names, ys, fast)
+    bad = min(bad, int(np.argmax(~np.all(np.isfinite(out), axis=1))))
     out[bad:] = np.nan
     return out
 

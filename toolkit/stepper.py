@@ -84,6 +84,8 @@ class _BlockState:
             return v
         if kind == "first_order_lag":
             return s if not self.started else self.v + self.s0
+        if kind == "polynomial":
+            return p["c0"] + s * (p["c1"] + s * (p["c2"] + s * p["c3"]))
         # rate_limit
         v = self.v if self.started else s
         r = p["rate"]
@@ -292,7 +294,9 @@ class Stepper:
             ``(ny,)`` outputs in the order of ``model.outputs``.
         """
         ub = self._in_blocks.value(self._check(u))
-        return self._out_blocks.value(self._raw_output(ub))
+        with np.errstate(over="ignore", invalid="ignore"):
+            y = self._out_blocks.value(self._raw_output(ub))
+        return y if np.all(np.isfinite(y)) else np.full(self.ny, np.nan)  # a curve overflowed
 
     def advance(self, u: Sequence[float] | FloatArray) -> FloatArray:
         """Commit inputs ``u`` at the current sample, move one sample on, return the outputs.
@@ -304,7 +308,12 @@ class Stepper:
         if not self._dead:
             self._update(ub, y)
         self.time_index += 1
-        return self._out_blocks.commit(y)
+        with np.errstate(over="ignore", invalid="ignore"):
+            out = self._out_blocks.commit(y)
+        if np.all(np.isfinite(out)):
+            return out
+        self._dead = True  # an output curve overflowed: diverged from here, as in simulate
+        return np.full(self.ny, np.nan)
 
     def step(self, u: Sequence[float] | FloatArray) -> FloatArray:
         """Outputs at the current sample for inputs ``u``, then advance (see :meth:`advance`)."""

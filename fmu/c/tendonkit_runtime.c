@@ -47,9 +47,11 @@ static int load_blocks(reader *r, tk_block *b, int nb, int nsig) {
     int k;
     for (k = 0; k < nb; k++) {
         b[k].sig = next_int(r, 0, nsig - 1);
-        b[k].kind = next_int(r, 0, 5);
+        b[k].kind = next_int(r, 0, 6);
         b[k].p0 = next(r);
         b[k].p1 = next(r);
+        b[k].p2 = next(r); /* a cubic's c2, c3 (0 for the other kinds) */
+        b[k].p3 = next(r);
         b[k].n = 0;
         if (b[k].kind == 0) {
             if (!(b[k].p0 >= 0 && b[k].p0 <= 100000 && b[k].p0 == floor(b[k].p0))) r->bad = 1;
@@ -127,7 +129,7 @@ int tk_load(tk_model *m, const char *path, char *why, size_t nwhy) {
     pos = r.i + (size_t)m->nu; /* u0 */
     if (pos >= r.n || !(raw[pos] >= 0 && raw[pos] <= LIMIT)) goto bad;
     m->nbi = (int)raw[pos];
-    pos += 1 + 4 * (size_t)m->nbi;
+    pos += 1 + 6 * (size_t)m->nbi;
     if (pos >= r.n || !(raw[pos] >= 0 && raw[pos] <= LIMIT)) goto bad;
     m->nbo = (int)raw[pos];
     /* every array below must be far from int and memory limits: a resource asking for more
@@ -360,6 +362,8 @@ static double block_value(const tk_model *m, const tk_block *b, double s) {
         return v;
     case 4: /* first-order lag */
         return started ? st[1] + st[2] : s;
+    case 6: /* polynomial: c0 + c1 s + c2 s^2 + c3 s^3 */
+        return b->p0 + s * (b->p1 + s * (b->p2 + s * b->p3));
     default: /* rate limit */
         v = started ? st[1] : s;
         return v + pmin(pmax(s - v, -b->p0), b->p0);
@@ -680,19 +684,26 @@ static void finish(tk_model *m, double *y, double *out) {
 }
 
 void tk_outputs(tk_model *m, double *out) {
+    int i;
     memcpy(m->ub, m->S + m->s_u, (size_t)m->nu * sizeof(double));
     chain(m, m->bi, m->nbi, m->ub, 0);
     raw_output(m, m->ub, m->yraw, 0);
     chain(m, m->bo, m->nbo, m->yraw, 0);
     finish(m, m->yraw, out);
+    for (i = 0; i < m->ny; i++) /* an output curve overflowed: NaN, as simulate gives */
+        if (!TK_FINITE(m->yraw[i]))
+            for (i = 0; i < m->nout; i++) out[i] = NAN;
 }
 
 int tk_advance(tk_model *m) {
+    int i;
     memcpy(m->ub, m->S + m->s_u, (size_t)m->nu * sizeof(double));
     chain(m, m->bi, m->nbi, m->ub, 1);
     raw_output(m, m->ub, m->yraw, 1);
     if (m->S[TK_DEAD] == 0.0) update(m, m->ub, m->yraw);
     m->S[TK_TIME_INDEX] += 1;
     chain(m, m->bo, m->nbo, m->yraw, 1);
+    for (i = 0; i < m->ny; i++)
+        if (!TK_FINITE(m->yraw[i])) m->S[TK_DEAD] = 1.0; /* an output curve overflowed */
     return m->S[TK_DEAD] != 0.0;
 }

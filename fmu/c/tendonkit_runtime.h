@@ -26,12 +26,13 @@
 #endif
 #define TK_FINITE(x) ((x) - (x) == 0.0)
 
-#define TK_FORMAT 2.0
+#define TK_FORMAT 3.0
 #define TK_MAGIC 7318.2026 /* first number of every model.tkm */
 
 typedef struct {
-    int sig, kind;   /* signal index; 0 delay, 1 dead_zone, 2 saturation, 3 play, 4 lag, 5 rate */
-    double p0, p1;   /* parameters (delay: whole samples n and fraction a) */
+    int sig, kind;   /* signal index; 0 delay, 1 dead_zone, 2 saturation, 3 play, 4 lag, 5 rate, 6 polynomial */
+    double p0, p1;   /* parameters (delay: whole samples n and fraction a; polynomial: c0, c1) */
+    double p2, p3;   /* polynomial: c2, c3 */
     int n;           /* delay: whole samples */
     int off;         /* offset of this block's state in S: started, v, s0, head, fifo[n + 1] */
 } tk_block;

@@ -149,3 +149,48 @@ def test_the_tall_trust_region_takes_scipys_steps() -> None:
         np.testing.assert_allclose(x, ref.x, rtol=1e-6)
         np.testing.assert_allclose(f @ f, ref.fun @ ref.fun, rtol=1e-9)
         assert np.allclose(x, truth, rtol=0.05) == converges
+
+
+def test_a_wiener_model_is_refined_whole_with_the_exact_jacobian() -> None:
+    """ARX(2, 2) followed by a cubic output curve: the Jacobian's coefficient columns (forward
+    sensitivities times the curve's slope) equal finite differences; refined from a start
+    with the wrong dynamics and a linear curve, the model simulates fresh data like the truth."""
+    from scipy.optimize._numdiff import approx_derivative
+
+    from tendonkit.output_error import _arx_jacobian, _codec, exact_jacobian
+    from tendonkit.schema import ARX
+    from tendonkit.simulate import simulate
+
+    def wiener(a1: float, b0: float, c: tuple[float, float, float, float]) -> Model:
+        rep = ARX(
+            A=(np.array([[a1]]), np.array([[0.7]])),
+            B=(np.array([[b0]]), np.array([[0.2]])),
+            nk=(1,),
+        )
+        curve = Block("polynomial", "y", dict(zip(("c0", "c1", "c2", "c3"), c, strict=True)))
+        return Model("w", 0.01, (Signal("u"),), (Signal("y"),), rep, output_blocks=(curve,))
+
+    truth = wiener(-1.5, 0.4, (0.3, 1.0, 0.6, -0.1))
+    rng = np.random.default_rng(3)
+    u = rng.normal(size=(1500, 1))
+    y = simulate(truth, u, initial="zero") + 0.01 * rng.normal(size=(1500, 1))
+    data = tk.Dataset.from_arrays(u, y, 0.01, ["u"], ["y"])
+    start = wiener(-1.4, 0.3, (0.0, 1.0, 0.0, 0.0))
+    assert exact_jacobian(start)
+    theta0, decode = _codec(start, True)
+    scale = np.std(y, axis=0)
+
+    def run(th):  # type: ignore[no-untyped-def]
+        sim = simulate(decode(th), u, y=y, initial="estimate")
+        return [sim], ((y - sim) / scale).ravel()
+
+    exact = _arx_jacobian(start, data, decode, run, scale)(theta0)
+    fd = approx_derivative(lambda th: run(th)[1], theta0, method="3-point")
+    n_coef = 4  # a1, a2, b0, b1; the curve's c0..c3 follow (their columns leave out how the
+    # start from the outputs taken back moves with the curve)
+    assert np.abs(exact[:, :n_coef] - fd[:, :n_coef]).max() <= 1e-5 * np.abs(fd).max()
+    u2 = np.random.default_rng(4).normal(size=(1000, 1))
+    fresh = tk.Dataset.from_arrays(u2, simulate(truth, u2, initial="zero"), 0.01, ["u"], ["y"])
+    refined = refine(start, data)
+    assert _fit(start, fresh) < 80.0
+    assert _fit(refined, fresh) > 99.0

@@ -151,8 +151,10 @@ DEFAULTS = {"EMPS": "coulomb_friction", "Coupled electric drives": "static_nonli
 NOT_YET = {
     "Coupled electric drives": (
         "the two 100-sample test records give "
-        "the delay left out of the baseline (+20.8, p_adj 8e-4) first; "
-        "the rectifier's static curve gains +14 but is not significant"
+        "the delay left out of the baseline (+20.8, p_adj 1e-3) first; "
+        "the rectifier's curve after the dynamics (Wiener) gains the most, +24.4, but is not "
+        "significant (p_adj 0.34): on the ARX(1, 1) chosen for the linear baseline it "
+        "simulates the low-amplitude record worse in two of five batches"
     ),
 }
 
@@ -206,6 +208,27 @@ def test_bouc_wen_is_hysteresis_at_benchmark_grade():
     assert d.cause == "hysteresis", top
     assert d.best is not None and d.best.gain > 5 and d.best.params["structure"] == "bouc_wen"
     assert ext <= 5e-5 < base
+
+
+def test_coupled_drives_rectifier_is_a_curve_after_the_dynamics():
+    """Default options, the diagnosis inside the training records (bench_real's split: 300 +
+    300 samples to fit, 100 + 100 to check, the official test records untouched): the
+    sign-blind speed sensor is named ``static_nonlinearity`` as a Wiener structure — a cubic
+    curve after the dynamics (a ``polynomial`` output block), refined with the linear part by
+    simulation error — and the extended model meets issue 18's target on both official test
+    records (<= 0.15; the baseline 0.26 / 0.33, published best linear 0.224 / 0.331)."""
+    bench = _bench()
+    _, train, tests = next(c for c in _raw_cases() if c[0] == "Coupled electric drives")
+    fit_part, check = bench.split_training(train)
+    d = diagnose(fit_part, check)
+    top = ", ".join(f"{f.effect} {f.gain:+.2f} (p_adj {f.p_adjusted:.1e})" for f in d.findings[:3])
+    ext = [bench.rmse(d.extended, t, i) for _, t, i in tests]
+    base = [bench.rmse(d.baseline, t, i) for _, t, i in tests]
+    print(f"\nCED (inside training): causes {d.causes}; {top}; test RMSE {base} -> {ext}")
+    assert d.cause == "static_nonlinearity", top
+    assert d.best is not None and d.best.params["structure"] == "Wiener"
+    assert [b.kind for b in d.extended.output_blocks] == ["polynomial"]
+    assert max(ext) <= 0.15 < min(base)
 
 
 def test_cascaded_tanks_default_options_see_the_overflow():

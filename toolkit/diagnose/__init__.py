@@ -28,9 +28,11 @@ from .engine import BIAS_RATIO, check_baseline, diagnose, params_of
 from .extend import (
     drop_samples,
     extend_with_terms,
+    fit_wiener,
     refit_with_input_blocks,
     transform_inputs,
     transform_outputs,
+    with_output_curves,
 )
 from .findings import DEFAULT_EXPERIMENT, DISCRIMINATING, Diagnosis, Finding, Step
 from .residuals import ResidualAnalysis
@@ -54,10 +56,12 @@ __all__ = [
     "diagnose",
     "drop_samples",
     "extend_with_terms",
+    "fit_wiener",
     "mean_fit",
     "params_of",
     "refit_with_input_blocks",
     "simulate_all",
     "transform_inputs",
     "transform_outputs",
+    "with_output_curves",
 ]

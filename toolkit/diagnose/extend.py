@@ -25,7 +25,7 @@ from ..dataset import Dataset, Experiment
 from ..errors import SchemaError
 from ..regression import scaled_lstsq, term_columns_of
 from ..schema import ARX, Block, Model, SparseMap, StateSpace
-from ..simulate import aligned, transform_inputs
+from ..simulate import aligned, inner_outputs, simulate, transform_inputs
 from ..terms import Term
 
 FloatArray = NDArray[np.float64]
@@ -286,6 +286,64 @@ def _extend_ss(model: Model, rep: StateSpace, data: Dataset, terms: tuple[Term, 
 
 
 # -- data transforms for block-based extensions ---------------------------------------------------
+
+
+def with_output_curves(inner: Model, data: Dataset, degree: int = 3) -> Model:
+    """``inner`` followed by a ``polynomial`` block per output (a Wiener model), fitted by
+    least squares.
+
+    ``inner`` is simulated on every experiment of ``data`` (its initial state estimated); each
+    output's curve maps that simulated signal to the measured output (powers of the signal
+    scaled to unit spread for the fit, the coefficients then written for the raw signal).
+
+    Raises
+    ------
+    ValueError
+        ``inner`` diverges on the data.
+    """
+    if not 1 <= degree <= 3:
+        raise ValueError(f"a polynomial block is at most cubic, found degree {degree}")
+    data = aligned(inner, data)
+    x = np.vstack([simulate(inner, e.u, y=e.y, initial="estimate") for e in data.experiments])
+    if not np.all(np.isfinite(x)):
+        raise ValueError("the inner model diverges on the data")
+    blocks = []
+    for j, name in enumerate(inner.output_names):
+        mu = float(x[:, j].mean())
+        sd = float(x[:, j].std()) or 1.0
+        V = np.vander((x[:, j] - mu) / sd, degree + 1, increasing=True)
+        a = np.linalg.lstsq(V, data.y[:, j], rcond=None)[0]
+        # sum a_i ((s - mu) / sd)^i written as a polynomial of s
+        coef = np.polynomial.Polynomial(a)(np.polynomial.Polynomial([-mu / sd, 1.0 / sd])).coef
+        c = np.zeros(4)
+        c[: coef.size] = coef
+        blocks.append(Block("polynomial", name, {f"c{i}": float(c[i]) for i in range(4)}))
+    return inner.replace(output_blocks=(*inner.output_blocks, *blocks))
+
+
+#: Rounds of :func:`fit_wiener`'s alternating least squares.
+WIENER_ROUNDS = 2
+
+
+def fit_wiener(
+    refit: Callable[[Dataset], Model], data: Dataset, rounds: int = WIENER_ROUNDS
+) -> Model:
+    """A structure with a cubic curve after each output (a Wiener model), by least squares.
+
+    A curve after the dynamics bends the measured output, and a linear part fitted to the
+    bent output is biased; so the fit alternates: the curve by least squares from the
+    simulated inner signal (:func:`with_output_curves`), then the linear part by ``refit``
+    (the structure's identifier) on the measured outputs taken back through the curve
+    (:func:`tendonkit.simulate.inner_outputs`), ``rounds`` times.
+    """
+    model = with_output_curves(refit(data), data)
+    for _ in range(rounds):
+        base = aligned(model, data)
+        inner_data = base.with_experiments(
+            [dataclasses.replace(e, y=inner_outputs(model, e.y)) for e in base.experiments]
+        )
+        model = with_output_curves(refit(inner_data), data)
+    return model
 
 
 def transform_outputs(data: Dataset, fn: Callable[[FloatArray], FloatArray]) -> Dataset:

@@ -152,9 +152,9 @@ NOT_YET = {
     "Coupled electric drives": (
         "the two 100-sample test records give "
         "the delay left out of the baseline (+20.8, p_adj 1e-3) first; "
-        "the rectifier's curve after the dynamics (Wiener) gains the most, +24.4, but is not "
-        "significant (p_adj 0.34): on the ARX(1, 1) chosen for the linear baseline it "
-        "simulates the low-amplitude record worse in two of five batches"
+        "the rectifier's curve after the dynamics (Wiener, its ARX order chosen with the "
+        "curve in place) gains the most, +46.9, and simulates every one of the five batches "
+        "better, but by 1.3x to 19x: p_adj 0.032 on 2 x 100 samples"
     ),
 }
 

@@ -119,6 +119,11 @@ class Context:
     identifier: Any
     residuals: ResidualAnalysis
     seed: int = 0
+    #: Largest ARX order of a structure the effects may choose themselves (0: they keep the
+    #: baseline's).  Set when the baseline chose its own orders on the training data (the
+    #: automatic ARX): an effect that changes what the linear part sees (a curve after the
+    #: dynamics) may choose the orders again with itself in place, the same way.
+    max_order: int = 0
     _cache: dict[str, Any] = field(default_factory=dict)
 
     def refit(self, data: Dataset) -> Model:

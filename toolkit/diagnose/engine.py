@@ -234,6 +234,7 @@ def diagnose(
         identifier=base.identifier,
         residuals=analyse(base.model, train),
         seed=seed,
+        max_order=AUTO_MAX_ORDER if base.choice else 0,
     )
     bar.update()
     trials, skipped = run_effects(registry, settings.effects, ctx, ref, valid, settings, bar)

@@ -17,6 +17,7 @@
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -57,7 +58,7 @@ def select(
     if options.equal_orders and na_fixed is None and nb_fixed is None:
         pairs = [(n, (n,) * nu) for n in range(1, options.max_order + 1)]
     window = max(10, options.max_order + max(nk) + 1)
-    folds = _folds(data, window)
+    folds = cv_folds(data, window)
     candidates = [(offset, na, nb) for offset in offsets for na, nb in pairs]
     # the candidates are independent: options.jobs workers score them (tendonkit.parallel)
     errors = map_tasks(
@@ -140,7 +141,7 @@ def _one_step_loss(model: Any, data: Dataset, lag: int) -> float:
     return float(np.mean(e**2)) if np.all(np.isfinite(e)) else np.inf
 
 
-def _folds(data: Dataset, window: int) -> list[tuple[Dataset, list[Experiment]]]:
+def cv_folds(data: Dataset, window: int) -> list[tuple[Dataset, list[Experiment]]]:
     """:meth:`Dataset.blocked_folds` with pieces long enough for the window's history."""
     out = [
         (f, list(h.experiments)) for f, h in data.blocked_folds(FOLDS, 2 * window + 1, window + 1)
@@ -153,11 +154,22 @@ def _folds(data: Dataset, window: int) -> list[tuple[Dataset, list[Experiment]]]
 
 
 def _held_out(options: Any, folds: list[tuple[Dataset, list[Experiment]]], window: int) -> float:
+    def build(data: Dataset) -> Any:
+        with without_training_fit():
+            return options.identify(data)
+
+    return held_out_error(build, folds, window)
+
+
+def held_out_error(
+    build: Callable[[Dataset], Any], folds: list[tuple[Dataset, list[Experiment]]], window: int
+) -> float:
+    """Normalised RMS simulation error of ``build(fit part)`` on the held-out blocks of
+    :func:`cv_folds`, each started from its first ``window`` samples and scored after them."""
     sq, count = 0.0, 0
     sy = None
     for fit_data, held in folds:
-        with without_training_fit():
-            model = options.identify(fit_data)
+        model = build(fit_data)
         if sy is None:
             sy = np.std(np.vstack([e.y for e in fit_data.experiments]), axis=0)
             sy[~(sy > 0)] = 1.0

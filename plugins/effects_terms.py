@@ -35,11 +35,10 @@ from tendonkit.errors import TendonkitError
 from tendonkit.hookspecs import hookimpl
 from tendonkit.identification import without_training_fit
 from tendonkit.plugins._arx_structure import PARSIMONY as ARX_PARSIMONY
-from tendonkit.plugins._arx_structure import _folds as _arx_folds
 from tendonkit.plugins._arx_structure import as_tuple as _as_tuple
+from tendonkit.plugins._arx_structure import cv_folds, held_out_error
 from tendonkit.plugins.arx import ARX as ArxOptions
 from tendonkit.schema import ARX, Block, Model
-from tendonkit.simulate import simulate
 from tendonkit.terms import Factor, Term
 
 
@@ -543,7 +542,7 @@ def _wiener_order(
     nk = _as_tuple(ident.nk, nu)
     window = max(10, ctx.max_order + max(nk) + 1)
     try:
-        folds = _arx_folds(ctx.train, window)
+        folds = cv_folds(ctx.train, window)
     except TendonkitError:
         return None
 
@@ -556,24 +555,14 @@ def _wiener_order(
 
         return refit
 
-    sy = np.std(ctx.train.y, axis=0)
-    sy[~(sy > 0)] = 1.0
     table = []
     for n in range(1, ctx.max_order + 1):
-        sq, count = 0.0, 0
         try:
-            for fit_data, held in folds:
-                model = fit_wiener(refit_of(n), fit_data)
-                with np.errstate(all="ignore"):
-                    for e in held:
-                        sim = simulate(model, e.u, y=e.y, initial="estimate", init_window=window)
-                        err = (e.y[window:] - sim[window:]) / sy
-                        sq += float(np.sum(err**2))
-                        count += err.size
+            err = held_out_error(lambda d, n=n: fit_wiener(refit_of(n), d), folds, window)
         except (TendonkitError, ValueError, np.linalg.LinAlgError):
             continue
-        if count and np.isfinite(sq):
-            table.append({"order": n, "held_out_rms": float(np.sqrt(sq / count))})
+        if np.isfinite(err):
+            table.append({"order": n, "held_out_rms": err})
     if not table:
         return None
     top = min(r["held_out_rms"] for r in table)

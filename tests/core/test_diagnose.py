@@ -696,3 +696,29 @@ def _arx_model(data):
     from tendonkit.manager import identifiers
 
     return identifiers().get("arx").create(na=2, nb=1).identify(data)
+
+
+def test_a_named_wiener_model_is_refitted_with_its_own_order():
+    """The next step refits a named Wiener model the way it was built (alternating least
+    squares, its curve after the ARX) — with the baseline's identifier only where the ARX
+    order is the baseline's; an order the effect chose anew is left to the effect's builder."""
+    from tendonkit.diagnose import fit_wiener
+    from tendonkit.diagnose.engine import structure_builder
+    from tendonkit.manager import identifiers
+
+    train = _hammerstein_wiener(5, 3000, "output")
+    arx = identifiers().get("arx")
+
+    def refit(n: int):  # type: ignore[no-untyped-def]
+        return arx.create(na=n, nb=n).identify
+
+    same, other = fit_wiener(refit(2), train), fit_wiener(refit(4), train)
+    build = structure_builder(same, arx.create(na=2, nb=2))
+    assert build is not None
+    again = build(train)
+    assert again.representation.na == 2 and [b.kind for b in again.output_blocks] == ["polynomial"]
+    for key in ("c0", "c1", "c2", "c3"):
+        assert again.output_blocks[0].params[key] == pytest.approx(
+            same.output_blocks[0].params[key], rel=1e-9, abs=1e-12
+        )
+    assert structure_builder(other, arx.create(na=2, nb=2)) is None

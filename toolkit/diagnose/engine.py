@@ -890,12 +890,16 @@ def structure_builder(model: Model, identifier: Any) -> Any:
 
     The baseline identifier on the inputs passed through the model's input blocks (their
     parameters as in ``model``), then the model's added terms by :func:`extend_with_terms`,
-    then, for a Wiener model, its output curves (:func:`fit_wiener`, as the candidate was built).  None when that
-    cannot reproduce the structure (other output blocks, a state-space model, no identifier).
+    then, for a Wiener model, its output curves (:func:`fit_wiener`, as the candidate was
+    built).  None when that cannot reproduce the structure (other output blocks, a state-space
+    model, no identifier, or a Wiener model whose ARX order the effect chose anew: the
+    effect's own builder keeps that order).
     """
     rep = model.representation
     curves = bool(model.output_blocks) and all(b.kind == "polynomial" for b in model.output_blocks)
     if identifier is None or (model.output_blocks and not curves) or not isinstance(rep, ARX):
+        return None
+    if curves and getattr(identifier, "na", rep.na) != rep.na:
         return None
 
     def identify(data: Dataset) -> Model:

@@ -57,7 +57,7 @@ def select(
     pairs = [(na, nb) for na in nas for nb in nbs]
     if options.equal_orders and na_fixed is None and nb_fixed is None:
         pairs = [(n, (n,) * nu) for n in range(1, options.max_order + 1)]
-    window = max(10, options.max_order + max(nk) + 1)
+    window = cv_window(options.max_order, nk)
     folds = cv_folds(data, window)
     candidates = [(offset, na, nb) for offset in offsets for na, nb in pairs]
     # the candidates are independent: options.jobs workers score them (tendonkit.parallel)
@@ -139,6 +139,12 @@ def _one_step_loss(model: Any, data: Dataset, lag: int) -> float:
     err = [(e.y[lag:] - predict(model, e.u, e.y, 1)[lag:]).ravel() for e in data.experiments]
     e = np.concatenate(err)
     return float(np.mean(e**2)) if np.all(np.isfinite(e)) else np.inf
+
+
+def cv_window(max_order: int, nk: tuple[int, ...]) -> int:
+    """Initialisation window of the held-out blocks: at least 10 samples, and the history of
+    the largest candidate (``max_order`` lags after the longest delay)."""
+    return max(10, max_order + max(nk) + 1)
 
 
 def cv_folds(data: Dataset, window: int) -> list[tuple[Dataset, list[Experiment]]]:

@@ -36,7 +36,7 @@ from tendonkit.hookspecs import hookimpl
 from tendonkit.identification import without_training_fit
 from tendonkit.plugins._arx_structure import PARSIMONY as ARX_PARSIMONY
 from tendonkit.plugins._arx_structure import as_tuple as _as_tuple
-from tendonkit.plugins._arx_structure import cv_folds, held_out_error
+from tendonkit.plugins._arx_structure import cv_folds, cv_window, held_out_error
 from tendonkit.plugins.arx import ARX as ArxOptions
 from tendonkit.schema import ARX, Block, Model
 from tendonkit.terms import Factor, Term
@@ -482,10 +482,10 @@ class StaticNonlinearity(_TermEffect):
         *after* the dynamics — a rectifying speed sensor, a diode at the output — is not a
         function of past outputs, whose values it has already bent: it acts on the model's
         inner signal, which is not measured.  The Wiener candidate is the baseline structure
-        fitted on the data, simulated, and a ``polynomial`` output block fitted by least
-        squares from that inner signal to the measured output (the curve's share of the
-        nonlinearity: the linear part is not re-estimated here; a named extension is refined
-        by simulation error, all of it).
+        with a ``polynomial`` output block, fitted by alternating least squares
+        (:func:`tendonkit.diagnose.fit_wiener`), its ARX order chosen again with the curve in
+        place where the baseline chose its own (:func:`_wiener_order`); a named one is refined
+        by simulation error, all of it, like every extension.
         """
         cands = super().builders(ctx)
         if ctx.baseline.output_blocks:
@@ -539,8 +539,7 @@ def _wiener_order(
     if ctx.max_order < 1 or not isinstance(ident, ArxOptions) or not isinstance(ident.na, int):
         return None
     nu = ctx.train.nu
-    nk = _as_tuple(ident.nk, nu)
-    window = max(10, ctx.max_order + max(nk) + 1)
+    window = cv_window(ctx.max_order, _as_tuple(ident.nk, nu))
     try:
         folds = cv_folds(ctx.train, window)
     except TendonkitError:

@@ -44,7 +44,14 @@ from .errors import SchemaError
 from .identification import training_fit
 from .regression import r_factor
 from .schema import ARX, Block, Model, SparseMap, StateSpace
-from .simulate import _apply_blocks, aligned, initial_span, inner_outputs, simulate
+from .simulate import (
+    _apply_blocks,
+    aligned,
+    curve_slope,
+    initial_span,
+    inner_outputs,
+    simulate,
+)
 from .terms import CompiledTerms, Term
 
 FloatArray = NDArray[np.float64]
@@ -467,7 +474,7 @@ def _arx_sensitivity_applies(model: Model, initial: str) -> bool:
         isinstance(rep, ARX)
         and initial == "estimate"
         # a curve after the model (Wiener): chain rule through the curve, one per output
-        and all(b.kind == "polynomial" for b in model.output_blocks)
+        and (model.is_wiener or not model.output_blocks)
         and len({b.signal for b in model.output_blocks}) == len(model.output_blocks)
         and not any(t.stateful for t in rep.terms)
         and not tied_terms(rep, model.output_names)
@@ -550,8 +557,8 @@ def _arx_jacobian(
 
     def jac(theta: FloatArray) -> FloatArray:
         m = decode(theta)
-        n_in_j = n_in if theta.size > n_lin else 0  # blocks=False: no block parameters
-        curve_params = n_curve > 0 and theta.size == n_lin + n_in + n_curve
+        # the curves' coefficients are in the vector only when the blocks are refined
+        n_exact_curve = n_curve if theta.size == n_lin + n_in + n_curve else 0
         rep = m.representation
         assert isinstance(rep, ARX)
         sims, r0 = run(theta)
@@ -559,7 +566,8 @@ def _arx_jacobian(
             return np.zeros((r0.size, theta.size))
         coef = np.zeros((nt, ny)) if rep.term_coefficients is None else rep.term_coefficients
         A = np.array(rep.A).reshape(len(rep.A), ny, ny) if rep.A else np.zeros((0, ny, ny))
-        blocks: list[FloatArray] = []
+        linear: list[FloatArray] = []
+        curve_cols: list[FloatArray] = []
         curves = [(outputs.index(b.signal), b) for b in m.output_blocks]
         inner = m.replace(output_blocks=()) if curves else m
         with np.errstate(all="ignore"):
@@ -579,29 +587,22 @@ def _arx_jacobian(
                     Phi, A, np.ascontiguousarray(coef, dtype=float), J, qcol, qlag, start, L
                 )
                 Sx = S[L:]
-                powers = np.zeros((N, ny, 4 * len(curves)))
+                powers = np.zeros((N, ny, n_curve))
                 for k, (j, b) in enumerate(curves):  # d f(x) = f'(x) dx, d f / d c_i = x^i
-                    c = b.params
-                    x = ys[:, j]
-                    Sx[:, j, :] *= (c["c1"] + x * (2.0 * c["c2"] + 3.0 * c["c3"] * x))[:, None]
-                    powers[:, j, 4 * k : 4 * k + 4] = np.vander(x, 4, increasing=True)
-                if curve_params:
-                    Sx = np.concatenate([Sx, powers], axis=2)
-                blocks.append((-Sx / scale[None, :, None]).reshape(N * ny, -1))
-        out = np.vstack(blocks)
-        n_exact = n_lin + (4 * len(curves) if curve_params else 0)
-        if curve_params:  # the curves' columns go last, after the input blocks' parameters
-            out = np.hstack([out[:, :n_lin], np.zeros((out.shape[0], n_in_j)), out[:, n_lin:]])
-        elif theta.size > n_lin:
-            out = np.hstack([out, np.zeros((out.shape[0], theta.size - n_lin))])
-        if theta.size > n_exact:  # the other blocks' parameters: forward differences
-            extra = np.empty((out.shape[0], theta.size - n_exact))
-            for col, p in enumerate(range(n_lin, n_lin + theta.size - n_exact)):
-                h = 1.4901161193847656e-08 * max(1.0, abs(float(theta[p])))
-                step = theta.copy()
-                step[p] += h
-                extra[:, col] = (run(step)[1] - r0) / h
-            out[:, n_lin : n_lin + extra.shape[1]] = extra
+                    Sx[:, j, :] *= curve_slope(b.params, ys[:, j])[:, None]
+                    powers[:, j, 4 * k : 4 * k + 4] = np.vander(ys[:, j], 4, increasing=True)
+                linear.append((-Sx / scale[None, :, None]).reshape(N * ny, -1))
+                curve_cols.append((-powers / scale[None, :, None]).reshape(N * ny, -1))
+        out = np.zeros((r0.size, theta.size))
+        out[:, :n_lin] = np.vstack(linear)
+        if n_exact_curve:  # the curves' coefficients come last (``_codec``)
+            out[:, theta.size - n_exact_curve :] = np.vstack(curve_cols)
+        # the other blocks' parameters: forward differences
+        for p in range(n_lin, theta.size - n_exact_curve):
+            h = 1.4901161193847656e-08 * max(1.0, abs(float(theta[p])))
+            step = theta.copy()
+            step[p] += h
+            out[:, p] = (run(step)[1] - r0) / h
         return np.where(np.isfinite(out), out, 0.0)
 
     return jac

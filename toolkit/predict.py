@@ -51,7 +51,7 @@ def predict(model: Model, u: FloatArray, y: FloatArray, k: int = 1) -> FloatArra
     y = y_checked
     if k < 1:
         raise DataError(f"The prediction horizon k must be >= 1, found {k}.")
-    if model.output_blocks and all(b.kind == "polynomial" for b in model.output_blocks):
+    if model.is_wiener:
         # A Wiener model: the representation predicts its inner signal from the measured
         # outputs taken back through the curves, and the curves give the outputs.
         inner = model.replace(output_blocks=())

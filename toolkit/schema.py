@@ -101,6 +101,12 @@ class Model:
         return [s.name for s in self.outputs]
 
     @property
+    def is_wiener(self) -> bool:
+        """True when the model has output blocks and every one is a static curve
+        (``polynomial``): a Wiener model, whose representation's own output is not measured."""
+        return bool(self.output_blocks) and all(b.kind == "polynomial" for b in self.output_blocks)
+
+    @property
     def is_linear(self) -> bool:
         """True for a linear representation without nonlinear blocks or terms (input delays
         and first-order lags are linear)."""

@@ -75,7 +75,7 @@ def apply_block(block: Block, s: FloatArray, compiled: bool = True) -> FloatArra
             )
         return rate_limiter(s, p["rate"])
     if block.kind == "polynomial":
-        return np.asarray(p["c0"] + s * (p["c1"] + s * (p["c2"] + s * p["c3"])))
+        return np.asarray(curve_value(p, s))
     raise SimulationError(f"Unknown block kind {block.kind!r}.")  # pragma: no cover
 
 
@@ -127,6 +127,16 @@ def _apply_blocks(
     return out
 
 
+def curve_value(p: Mapping[str, float], s: Any) -> Any:
+    """A ``polynomial`` block's curve ``c0 + c1 s + c2 s^2 + c3 s^3`` (scalar or array)."""
+    return p["c0"] + s * (p["c1"] + s * (p["c2"] + s * p["c3"]))
+
+
+def curve_slope(p: Mapping[str, float], s: Any) -> Any:
+    """The curve's derivative ``c1 + 2 c2 s + 3 c3 s^2``."""
+    return p["c1"] + s * (2.0 * p["c2"] + 3.0 * p["c3"] * s)
+
+
 def curve_inverse(block: Block, y: FloatArray, iterations: int = 60) -> FloatArray:
     """The inner signal ``s`` that a ``polynomial`` block maps to ``y``, sample by sample.
 
@@ -136,21 +146,16 @@ def curve_inverse(block: Block, y: FloatArray, iterations: int = 60) -> FloatArr
     of a Wiener model taken back to its inner signal, from which the representation's initial
     state is estimated.
     """
-    p = block.params
-    c0, c1, c2, c3 = (float(p[k]) for k in ("c0", "c1", "c2", "c3"))
+    p = {k: float(v) for k, v in block.params.items()}
     y = np.asarray(y, dtype=float)
-
-    def curve(v: FloatArray) -> FloatArray:
-        return np.asarray(c0 + v * (c1 + v * (c2 + v * c3)))
-
     s = y.copy()
-    r = curve(s) - y
-    damping = np.full(s.shape, 1e-3 * max(c1 * c1 + c2 * c2 + c3 * c3, 1e-300))
+    r = curve_value(p, s) - y
+    damping = np.full(s.shape, 1e-3 * max(p["c1"] ** 2 + p["c2"] ** 2 + p["c3"] ** 2, 1e-300))
     with np.errstate(over="ignore", invalid="ignore"):
         for _ in range(iterations):
-            d = c1 + s * (2.0 * c2 + 3.0 * s * c3)
+            d = curve_slope(p, s)
             trial = s - r * d / (d * d + damping)
-            r_trial = curve(trial) - y
+            r_trial = curve_value(p, trial) - y
             better = np.abs(r_trial) < np.abs(r)
             s = np.where(better, trial, s)
             r = np.where(better, r_trial, r)
@@ -297,23 +302,20 @@ def simulate(
             ys = _sim_arx(model, rep, ub, y, initial, fast, init_window)
         else:
             ys = _sim_sparse(model, rep, ub, y, initial, fast)
-    if np.all(np.isfinite(ys)):
-        with np.errstate(over="ignore", invalid="ignore"):
-            out = _apply_blocks(model.output_blocks, model.output_names, ys, fast)
-        if np.all(np.isfinite(out)):
-            return out
-        bad = int(np.argmax(~np.all(np.isfinite(out), axis=1)))  # a curve overflowed
-        out[bad:] = np.nan
-        return out
-    # Diverged: nothing from the first non-finite sample on is meaningful, also after an
-    # output block (a play operator would otherwise hold its last finite value).
-    bad = int(np.argmax(~np.all(np.isfinite(ys), axis=1)))
+    # Diverged (or an output curve overflowed): nothing from the first non-finite sample on is
+    # meaningful, also after an output block (a play would otherwise hold its last finite value).
+    bad = _first_non_finite(ys)
     ys[bad:] = np.nan
     with np.errstate(over="ignore", invalid="ignore"):
         out = _apply_blocks(model.output_blocks, model.output_names, ys, fast)
-    bad = min(bad, int(np.argmax(~np.all(np.isfinite(out), axis=1))))
-    out[bad:] = np.nan
+    out[min(bad, _first_non_finite(out)) :] = np.nan
     return out
+
+
+def _first_non_finite(a: FloatArray) -> int:
+    """Index of the first row of ``a`` with a non-finite entry (``len(a)`` if none)."""
+    rows = ~np.all(np.isfinite(a), axis=1)
+    return int(np.argmax(rows)) if rows.any() else a.shape[0]
 
 
 def simulate_dataset(

@@ -41,7 +41,7 @@ from numpy.typing import NDArray
 from .errors import DataError
 from .realize import arx_lag_matrices, fold_offsets
 from .schema import ARX, Block, Model, SparseMap, StateSpace
-from .simulate import arx_max_lag, split_delay
+from .simulate import arx_max_lag, curve_value, split_delay
 from .terms import CompiledTerms, scalar_evaluator
 
 __all__ = ["Stepper", "feedthrough", "history_length"]
@@ -85,7 +85,7 @@ class _BlockState:
         if kind == "first_order_lag":
             return s if not self.started else self.v + self.s0
         if kind == "polynomial":
-            return p["c0"] + s * (p["c1"] + s * (p["c2"] + s * p["c3"]))
+            return float(curve_value(p, s))
         # rate_limit
         v = self.v if self.started else s
         r = p["rate"]

@@ -675,24 +675,25 @@ static void kinematics(const tk_model *m, const double *y, const double *ratio, 
 
 /* ------------------------------------------------------------------ public */
 
+/* Outputs (and kinematics) from y after the output blocks; NaN once dead or where an output
+ * curve overflowed (as simulate gives). */
 static void finish(tk_model *m, double *y, double *out) {
-    int i;
-    for (i = 0; i < m->ny; i++) out[i] = y[i];
+    int i, dead = m->S[TK_DEAD] != 0.0;
+    for (i = 0; i < m->ny; i++) {
+        out[i] = y[i];
+        if (!TK_FINITE(y[i])) dead = 1;
+    }
     if (m->kin) kinematics(m, y, m->S + m->s_ratio, out + m->ny);
-    if (m->S[TK_DEAD] != 0.0)
+    if (dead)
         for (i = 0; i < m->nout; i++) out[i] = NAN;
 }
 
 void tk_outputs(tk_model *m, double *out) {
-    int i;
     memcpy(m->ub, m->S + m->s_u, (size_t)m->nu * sizeof(double));
     chain(m, m->bi, m->nbi, m->ub, 0);
     raw_output(m, m->ub, m->yraw, 0);
     chain(m, m->bo, m->nbo, m->yraw, 0);
     finish(m, m->yraw, out);
-    for (i = 0; i < m->ny; i++) /* an output curve overflowed: NaN, as simulate gives */
-        if (!TK_FINITE(m->yraw[i]))
-            for (i = 0; i < m->nout; i++) out[i] = NAN;
 }
 
 int tk_advance(tk_model *m) {

@@ -896,10 +896,11 @@ def structure_builder(model: Model, identifier: Any) -> Any:
     effect's own builder keeps that order).
     """
     rep = model.representation
-    curves = bool(model.output_blocks) and all(b.kind == "polynomial" for b in model.output_blocks)
-    if identifier is None or (model.output_blocks and not curves) or not isinstance(rep, ARX):
+    if identifier is None or not isinstance(rep, ARX):
         return None
-    if curves and getattr(identifier, "na", rep.na) != rep.na:
+    if model.output_blocks and not model.is_wiener:
+        return None
+    if model.is_wiener and getattr(identifier, "na", rep.na) != rep.na:
         return None
 
     def identify(data: Dataset) -> Model:
@@ -914,7 +915,7 @@ def structure_builder(model: Model, identifier: Any) -> Any:
         added = [t for t in rep.terms if t not in have]
         return extend_with_terms(lean, data, added) if added else lean
 
-    if curves:
+    if model.is_wiener:
         return lambda data: fit_wiener(inner, data)
     return inner
 

@@ -337,10 +337,10 @@ def fit_wiener(
     (:func:`tendonkit.simulate.inner_outputs`), ``rounds`` times.
     """
     model = with_output_curves(refit(data), data)
+    data = aligned(model, data)
     for _ in range(rounds):
-        base = aligned(model, data)
-        inner_data = base.with_experiments(
-            [dataclasses.replace(e, y=inner_outputs(model, e.y)) for e in base.experiments]
+        inner_data = data.with_experiments(
+            [dataclasses.replace(e, y=inner_outputs(model, e.y)) for e in data.experiments]
         )
         model = with_output_curves(refit(inner_data), data)
     return model

@@ -1,0 +1,169 @@
+"""diagnose at default options on a plant it was not designed on: a chain of three masses.
+
+Run from the repository root, one BLAS thread (benchmarks/README.md gives the results)::
+
+    OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 python benchmarks/bench_diagnose_chain.py --jobs 2
+
+Three unit masses in a line, the first tied to the ground by a spring of 200 N/m, neighbours
+coupled by springs of 400 N/m, every spring and the ground with dampers of 1.5 N·s/m
+(lightly damped); a band-limited random force (4 Hz, rms 20 N) on the first mass; the three
+positions measured at 5 ms with 1 % white noise.  One hidden effect per case, its magnitude
+drawn from the case's seed:
+
+- ``coulomb_friction``: a dry friction of 1–3 N on the middle mass;
+- ``backlash``: play of half-width 4–10 mm in the coupling of the first two masses
+  (*between two bodies*);
+- ``nonlinear_stiffness``: a hardening coupling of the last two masses,
+  ``k (d + α d³)``, α 500–2000 (*between two bodies*);
+- ``input_delay``: a dead time of 10–20 samples;
+- ``saturation``: the force clipped at 15–25 N;
+- ``dead_zone``: a force dead band of 4–8 N;
+- ``actuator_lag``: a force slew limit of 300–800 N/s.
+
+Training and validation are two records of 4,000 samples with different input seeds; the
+diagnosis is ``diagnose(train, valid)``, nothing set.  A case is named right when the first
+cause is the hidden effect (``none``: no cause).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy.signal import butter, lfilter
+
+from tendonkit.dataset import Dataset, Experiment
+from tendonkit.parallel import run_tasks
+
+DT = 0.005
+EFFECTS = (
+    "none",
+    "coulomb_friction",
+    "backlash",
+    "nonlinear_stiffness",
+    "input_delay",
+    "saturation",
+    "dead_zone",
+    "actuator_lag",
+)
+RANGES = {
+    "coulomb_friction": ("fc", 1.0, 3.0),
+    "backlash": ("b", 0.004, 0.01),
+    "nonlinear_stiffness": ("alpha", 500.0, 2000.0),
+    "input_delay": ("samples", 10, 20),
+    "saturation": ("limit", 15.0, 25.0),
+    "dead_zone": ("th", 4.0, 8.0),
+    "actuator_lag": ("rate", 300.0, 800.0),
+}
+
+
+def draw(effect: str, seed: int) -> dict[str, float]:
+    """The effect's magnitude, drawn in its range from the seed."""
+    if effect == "none":
+        return {}
+    key, lo, hi = RANGES[effect]
+    value = float(np.random.default_rng(seed).uniform(lo, hi))
+    return {key: round(value) if key == "samples" else value}
+
+
+def chain(effect: str, p: dict[str, float], seed: int, n: int = 4000) -> Dataset:
+    """One record of the chain with ``effect`` hidden (parameters ``p``)."""
+    rng = np.random.default_rng(seed)
+    u = lfilter(*butter(2, 4.0, fs=1 / DT), rng.standard_normal(n))
+    u = 20.0 * u / u.std()
+    v = u.copy()
+    if effect == "input_delay":
+        d = int(p["samples"])
+        v = np.concatenate([np.zeros(d), u[:-d]])
+    elif effect == "dead_zone":
+        v = np.sign(u) * np.maximum(np.abs(u) - p["th"], 0.0)
+    elif effect == "saturation":
+        v = np.clip(u, -p["limit"], p["limit"])
+    elif effect == "actuator_lag":
+        step = p["rate"] * DT
+        for k in range(1, n):
+            v[k] = v[k - 1] + np.clip(u[k] - v[k - 1], -step, step)
+    k0, k12, k23, c = 200.0, 400.0, 400.0, 1.5
+    x, w = np.zeros(3), np.zeros(3)
+    y = np.empty((n, 3))
+    sub = 20
+    h = DT / sub
+    for i in range(n):
+        y[i] = x
+        for _ in range(sub):
+            d12, d23 = x[0] - x[1], x[1] - x[2]
+            if effect == "backlash":
+                d12 = np.sign(d12) * max(abs(d12) - p["b"], 0.0)
+            f12 = k12 * d12 + c * (w[0] - w[1])
+            f23 = k23 * d23 + c * (w[1] - w[2])
+            if effect == "nonlinear_stiffness":
+                f23 += k23 * p["alpha"] * d23**3
+            fr = p["fc"] * np.tanh(w[1] / 1e-3) if effect == "coulomb_friction" else 0.0
+            a = np.array([v[i] - k0 * x[0] - c * w[0] - f12, f12 - f23 - fr, f23])
+            w = w + h * a
+            x = x + h * w
+    y = y + 0.01 * y.std(axis=0) * np.random.default_rng(seed + 1).standard_normal(y.shape)
+    e = Experiment(t=DT * np.arange(n), u=u[:, None], y=y, name=f"chain{seed}")
+    return Dataset(inputs=("F",), outputs=("x1", "x2", "x3"), experiments=(e,), dt=DT)
+
+
+def case(_shared: Any, job: tuple[str, int]) -> dict[str, Any]:
+    """One diagnosis at default options."""
+    from tendonkit.diagnose import diagnose
+
+    effect, seed = job
+    p = draw(effect, seed)
+    t0 = time.perf_counter()
+    d = diagnose(chain(effect, p, seed), chain(effect, p, seed + 500))
+    return {
+        "effect": effect,
+        "seed": seed,
+        "params": p,
+        "causes": list(d.causes),
+        "right": d.cause == effect,
+        "baseline": d.baseline_method,
+        "findings": [
+            {"effect": f.effect, "gain": f.gain, "p_adjusted": f.p_adjusted} for f in d.findings[:3]
+        ],
+        "seconds": time.perf_counter() - t0,
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--seeds", default="801,802", help="comma-separated seeds")
+    parser.add_argument("--jobs", type=int, default=1, help="worker processes")
+    parser.add_argument("--out", default=None, help="JSON file for the results")
+    args = parser.parse_args()
+    jobs = [(e, int(s)) for e in EFFECTS for s in args.seeds.split(",")]
+    load = os.getloadavg()[0]
+    t0 = time.perf_counter()
+    rows: list[dict[str, Any]] = [{} for _ in jobs]
+    for o in run_tasks(case, jobs, jobs=args.jobs):
+        if o.error is not None:
+            raise SystemExit(f"{jobs[o.index]} failed: {o.error}")
+        r = rows[o.index] = o.value
+        top = ", ".join(
+            f"{f['effect']} {f['gain']:+.2f} ({f['p_adjusted']:.0e})" for f in r["findings"]
+        )
+        mark = "right" if r["right"] else "MISS"
+        print(
+            f"{r['effect']:20s} {r['seed']}  {mark:5s} causes {', '.join(r['causes'])} "
+            f"(via {r['baseline']}; {top}) {r['seconds']:.0f} s",
+            flush=True,
+        )
+    right = sum(r["right"] for r in rows)
+    print(f"named right: {right} of {len(rows)}")
+    if args.out:
+        machine = {"load_before": load, "load_after": os.getloadavg()[0]}
+        machine["wall_s"] = time.perf_counter() - t0
+        Path(args.out).write_text(json.dumps({"rows": rows, "machine": machine}, indent=1))
+
+
+if __name__ == "__main__":
+    main()

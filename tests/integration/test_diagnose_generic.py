@@ -241,10 +241,13 @@ def test_a_sensor_range_is_a_saturation_seen_in_the_data(dt, ends):
     assert (best.params["lower"] is None) == (ends == "upper")
     direct = best.test.get("direct")
     # Where the clip is added to the baseline's dynamics (not re-identified), the pile-up at
-    # the level is tested; at dt 0.01 with both ends it names the cause alone.
+    # the level is tested.  At dt 0.01 the baseline is the N4SID fallback refined by its
+    # simulation error, and the extension is refined too before it is scored: with both ends
+    # clipped its fit gain is significant on its own as well (before both were refined it
+    # was not, p > 0.01, and the pile-up named the cause alone).
     assert direct is None or direct["p_value"] < 1e-10
     if (dt, ends) == (0.01, "both"):
-        assert direct is not None and best.test["loss_p_value"] > 0.01
+        assert direct is not None and best.test["loss_p_value"] < 1e-3
 
 
 def _two_tanks(seed: int, n: int = 1500, dt: float = 4.0) -> Dataset:

@@ -470,6 +470,10 @@ def choose_baseline(train: Dataset, method: str, settings: Settings) -> Baseline
         check["fallback"] = bool(settings.fallback and check["biased"])
         if check["fallback"]:
             method, identifier, model = "n4sid", check["_identifier"], check["_model"]
+            refined = _refined(model, train)
+            if refined is not model:
+                check["refined_fit"] = mean_fit(refined, train)
+                identifier, model = RefinedFallback(identifier), refined
         check.pop("_identifier", None)
         check.pop("_model", None)
     return Baseline(
@@ -480,6 +484,41 @@ def choose_baseline(train: Dataset, method: str, settings: Settings) -> Baseline
         choice=choice,
         selected=selected,
     )
+
+
+@dataclass(frozen=True)
+class RefinedFallback:
+    """The N4SID fallback's identifier, for a baseline refined by its simulation error.
+
+    N4SID is consistent under output noise but not at the simulation-error optimum of its
+    structure: an extension re-estimated by N4SID can gain by closing part of that distance
+    alone (a linear three-mass chain: N4SID 97.4 %, refined 99.0 %, ``coulomb_friction``
+    +1.2 points with p_adj 1e-31).  The baseline is refined; the effects still build their
+    candidates with N4SID, and the extension each effect proposes is refined the same way
+    before it is scored (:func:`try_effect`).
+    """
+
+    n4sid: Any
+
+    @property
+    def name(self) -> str:
+        return str(self.n4sid.name)
+
+    def identify(self, data: Dataset) -> Model:
+        return self.n4sid.identify(data)  # type: ignore[no-any-return]
+
+
+def _refined(
+    model: Model, train: Dataset, blocks: bool = True, max_nfev: int | None = None
+) -> Model:
+    """``model`` refined by its simulation error on ``train`` (itself where that fails);
+    ``blocks=False`` keeps the blocks' parameters (an effect's delay, clip level, width)."""
+    try:
+        return refine_by_simulation(
+            model, train, max_nfev=max_nfev or REFINE_MAX_NFEV, blocks=blocks
+        )
+    except (TendonkitError, np.linalg.LinAlgError, ValueError, FloatingPointError):
+        return model
 
 
 def score_baseline(baseline: Model, valid: Dataset) -> Reference:
@@ -538,6 +577,12 @@ def try_effect(
         return f"{type(exc).__name__}: {exc}"
     if ext is None:
         return "not applicable to these data"
+    if isinstance(ctx.identifier, RefinedFallback):
+        # the baseline is at its simulation-error optimum: the extension is scored at its own
+        refined = _refined(ext.model, ctx.train, blocks=False, max_nfev=CANDIDATE_MAX_NFEV)
+        ext = dataclasses.replace(
+            ext, model=refined, train_gain=ctx.score(refined) - ctx.baseline_score
+        )
     baseline = ctx.baseline
     sim = simulate_all(ext.model, valid)
     f = fit(ref.y, sim)
@@ -784,6 +829,9 @@ def continue_sequence(
 #: Iterations of the simulation-error refinement of a named extension (each costs one
 #: simulation per parameter; the equation-error start is usually close).
 REFINE_MAX_NFEV = 30
+#: The same for the extension each effect proposes on a refined N4SID fallback (one per effect,
+#: before it is scored): a ranking needs its gain to a tenth of a point, not convergence.
+CANDIDATE_MAX_NFEV = 10
 
 
 def refine_named(

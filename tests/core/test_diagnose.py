@@ -213,6 +213,10 @@ def test_a_baseline_biased_by_output_noise_falls_back_to_n4sid(seed):
     assert check is not None and check["biased"] and check["fallback"]
     assert check["requested_method"] == "arx" and check["error_ratio"] > 10
     assert d.baseline_method == "n4sid" and d.to_dict()["baseline"]["check"]["fallback"]
+    # the fallback is refined by its simulation error: the effects' extensions are compared
+    # with N4SID's structure at its optimum, not with N4SID's estimate (docs/diagnose.md)
+    assert check["refined_fit"] > check["reference_fit"]
+    assert "refined by simulation error" in d.baseline.provenance.notes
     assert d.cause == "none", [(f.effect, f.gain, f.p_adjusted) for f in d.findings]
     kept = diagnose(train, valid, method="arx", fallback=False, effects=["gravity"])
     assert kept.baseline_method == "arx" and kept.baseline_check["biased"]

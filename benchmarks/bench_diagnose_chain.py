@@ -23,6 +23,14 @@ drawn from the case's seed:
 Training and validation are two records of 4,000 samples with different input seeds; the
 diagnosis is ``diagnose(train, valid)``, nothing set.  A case is named right when the first
 cause is the hidden effect (``none``: no cause).
+
+``--plant tanks`` runs a second plant instead: two tanks in cascade at 1 s, the lower level
+measured (1 % noise), outflows ``0.5·sqrt(h)``, a pump of gain 0.25 driven around 5 V (a
+0.02 Hz band-limited input of std 1 V), tank areas ``--areas`` (default 2 and 3: time
+constants of 20 and 30 s).  Its effects: a dead time of 15–40 s, a pump that starts at
+4–4.6 V (``dead_zone``), a pump limited at 5.6–6.2 V (``saturation``), a slew limit of
+0.02–0.05 V/s (``actuator_lag``) and a pump curve ``u + c (u - 5)²`` (``static_nonlinearity``).
+The square root of the outflows is a static nonlinearity of the plant itself.
 """
 
 from __future__ import annotations
@@ -112,14 +120,67 @@ def chain(effect: str, p: dict[str, float], seed: int, n: int = 4000) -> Dataset
     return Dataset(inputs=("F",), outputs=("x1", "x2", "x3"), experiments=(e,), dt=DT)
 
 
-def case(_shared: Any, job: tuple[str, int]) -> dict[str, Any]:
+TANK_EFFECTS = ("none", "input_delay", "dead_zone", "saturation", "actuator_lag")
+TANK_EFFECTS += ("static_nonlinearity",)
+TANK_RANGES = {
+    "input_delay": ("samples", 15, 40),
+    "dead_zone": ("th", 4.0, 4.6),
+    "saturation": ("limit", 5.6, 6.2),
+    "actuator_lag": ("rate", 0.02, 0.05),
+    "static_nonlinearity": ("c", 0.15, 0.3),
+}
+
+
+def tanks(
+    effect: str, p: dict[str, float], seed: int, areas: tuple[float, float], n: int = 3000
+) -> Dataset:
+    """One record of the two tanks with ``effect`` hidden (parameters ``p``)."""
+    rng = np.random.default_rng(seed)
+    u = lfilter(*butter(2, 0.02, fs=1.0), rng.standard_normal(n))
+    u = 5.0 + u / u.std()
+    v = u.copy()
+    if effect == "input_delay":
+        d = int(p["samples"])
+        v = np.concatenate([np.full(d, u[0]), u[:-d]])
+    elif effect == "dead_zone":
+        v = np.where(u > p["th"], u, 0.0)
+    elif effect == "saturation":
+        v = np.minimum(u, p["limit"])
+    elif effect == "actuator_lag":
+        for k in range(1, n):
+            v[k] = v[k - 1] + np.clip(u[k] - v[k - 1], -p["rate"], p["rate"])
+    elif effect == "static_nonlinearity":
+        v = u + p["c"] * (u - 5.0) ** 2
+    h1 = h2 = (0.25 * 5.0 / 0.5) ** 2
+    y = np.empty(n)
+    h = 0.1
+    for i in range(n):
+        y[i] = h2
+        for _ in range(10):
+            q1, q2 = 0.5 * np.sqrt(max(h1, 0.0)), 0.5 * np.sqrt(max(h2, 0.0))
+            h1 += h / areas[0] * (0.25 * v[i] - q1)
+            h2 += h / areas[1] * (q1 - q2)
+    y = y + 0.01 * y.std() * np.random.default_rng(seed + 1).standard_normal(n)
+    e = Experiment(t=np.arange(n, dtype=float), u=u[:, None], y=y[:, None], name=f"tanks{seed}")
+    return Dataset(inputs=("pump",), outputs=("level",), experiments=(e,), dt=1.0)
+
+
+def case(shared: Any, job: tuple[str, int]) -> dict[str, Any]:
     """One diagnosis at default options."""
     from tendonkit.diagnose import diagnose
 
     effect, seed = job
-    p = draw(effect, seed)
+    plant, areas = shared
+    if plant == "tanks":
+        key, lo, hi = TANK_RANGES.get(effect, ("", 0.0, 0.0))
+        value = float(np.random.default_rng(seed).uniform(lo, hi))
+        p = {key: round(value) if key == "samples" else value} if key else {}
+        train, valid = tanks(effect, p, seed, areas), tanks(effect, p, seed + 500, areas)
+    else:
+        p = draw(effect, seed)
+        train, valid = chain(effect, p, seed), chain(effect, p, seed + 500)
     t0 = time.perf_counter()
-    d = diagnose(chain(effect, p, seed), chain(effect, p, seed + 500))
+    d = diagnose(train, valid)
     return {
         "effect": effect,
         "seed": seed,
@@ -139,12 +200,16 @@ def main() -> None:
     parser.add_argument("--seeds", default="801,802", help="comma-separated seeds")
     parser.add_argument("--jobs", type=int, default=1, help="worker processes")
     parser.add_argument("--out", default=None, help="JSON file for the results")
+    parser.add_argument("--plant", choices=("chain", "tanks"), default="chain")
+    parser.add_argument("--areas", default="2,3", help="the tanks' areas (time constants /10)")
     args = parser.parse_args()
-    jobs = [(e, int(s)) for e in EFFECTS for s in args.seeds.split(",")]
+    effects = TANK_EFFECTS if args.plant == "tanks" else EFFECTS
+    jobs = [(e, int(s)) for e in effects for s in args.seeds.split(",")]
+    areas = tuple(float(a) for a in args.areas.split(","))
     load = os.getloadavg()[0]
     t0 = time.perf_counter()
     rows: list[dict[str, Any]] = [{} for _ in jobs]
-    for o in run_tasks(case, jobs, jobs=args.jobs):
+    for o in run_tasks(case, jobs, jobs=args.jobs, shared=(args.plant, areas)):
         if o.error is not None:
             raise SystemExit(f"{jobs[o.index]} failed: {o.error}")
         r = rows[o.index] = o.value

@@ -128,6 +128,8 @@ def test_a_biased_baseline_is_replaced_and_the_note_printed(tmp_path):
     d = json.loads(out.read_text())
     assert d["baseline"]["method"] == "n4sid" and d["baseline"]["check"]["fallback"]
     assert "diagnosed against n4sid instead" in r.stdout and d["cause"] == "none"
+    assert "refined by its simulation error (training fit" in r.stdout
+    assert d["baseline"]["check"]["refined_fit"] > d["baseline"]["check"]["reference_fit"]
     r = run(*args, "--effects", "gravity", "--no-fallback", "--json", str(out))
     d = json.loads(out.read_text())
     assert r.returncode == 0 and d["baseline"]["method"] == "arx"

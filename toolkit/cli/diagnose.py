@@ -215,6 +215,11 @@ def render_diagnosis(summary: dict[str, Any]) -> str:
             if check["fallback"]
             else "kept (--no-fallback); its gains may measure that bias"
         )
+        if check["fallback"] and "refined_fit" in check:
+            what += (
+                f", refined by its simulation error (training fit {check['reference_fit']:.1f} "
+                f"-> {check['refined_fit']:.1f} %), each effect's extension refined the same way"
+            )
         lines.append(
             f"note: the {check['requested_method']} baseline's training free-run error is "
             f"{check['error_ratio']:.1f}x that of a linear n4sid model (output noise biases an "

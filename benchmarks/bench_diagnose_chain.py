@@ -70,11 +70,13 @@ RANGES = {
 }
 
 
-def draw(effect: str, seed: int) -> dict[str, float]:
-    """The effect's magnitude, drawn in its range from the seed."""
+def draw(
+    effect: str, seed: int, ranges: dict[str, tuple[str, float, float]] = RANGES
+) -> dict[str, float]:
+    """The effect's magnitude, drawn in its range (``RANGES``, ``TANK_RANGES``) from the seed."""
     if effect == "none":
         return {}
-    key, lo, hi = RANGES[effect]
+    key, lo, hi = ranges[effect]
     value = float(np.random.default_rng(seed).uniform(lo, hi))
     return {key: round(value) if key == "samples" else value}
 
@@ -172,9 +174,7 @@ def case(shared: Any, job: tuple[str, int]) -> dict[str, Any]:
     effect, seed = job
     plant, areas = shared
     if plant == "tanks":
-        key, lo, hi = TANK_RANGES.get(effect, ("", 0.0, 0.0))
-        value = float(np.random.default_rng(seed).uniform(lo, hi))
-        p = {key: round(value) if key == "samples" else value} if key else {}
+        p = draw(effect, seed, TANK_RANGES)
         train, valid = tanks(effect, p, seed, areas), tanks(effect, p, seed + 500, areas)
     else:
         p = draw(effect, seed)

@@ -26,6 +26,7 @@ uses both training parts together (a static curve is better seen over both ampli
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import time
@@ -193,21 +194,9 @@ def linear_cases() -> list[tuple[str, Dataset, list[tuple[str, Dataset, int | st
     return out
 
 
-_CASES: list[Any] = []
-_LINEAR: list[Any] = []
-
-
-def _cases() -> list[Any]:
-    """The datasets, read once per process (workers read them too: nothing is sent)."""
-    if not _CASES:
-        _CASES.extend(cases())
-    return _CASES
-
-
-def _linear_cases() -> list[Any]:
-    if not _LINEAR:
-        _LINEAR.extend(linear_cases())
-    return _LINEAR
+# The datasets, read once per process (workers read them too: nothing is sent).
+_cases = functools.cache(cases)
+_linear_cases = functools.cache(linear_cases)
 
 
 def diagnose_task(_shared: Any, index: int) -> list[dict[str, Any]]:

@@ -508,19 +508,6 @@ class RefinedFallback:
         return self.n4sid.identify(data)  # type: ignore[no-any-return]
 
 
-def _refined(
-    model: Model, train: Dataset, blocks: bool = True, max_nfev: int | None = None
-) -> Model:
-    """``model`` refined by its simulation error on ``train`` (itself where that fails);
-    ``blocks=False`` keeps the blocks' parameters (an effect's delay, clip level, width)."""
-    try:
-        return refine_by_simulation(
-            model, train, max_nfev=max_nfev or REFINE_MAX_NFEV, blocks=blocks
-        )
-    except (TendonkitError, np.linalg.LinAlgError, ValueError, FloatingPointError):
-        return model
-
-
 def score_baseline(baseline: Model, valid: Dataset) -> Reference:
     """The baseline's validation simulation, fit, loss and residual analysis."""
     y, sim = _sim_pair(baseline, valid)
@@ -832,6 +819,17 @@ REFINE_MAX_NFEV = 30
 #: The same for the extension each effect proposes on a refined N4SID fallback (one per effect,
 #: before it is scored): a ranking needs its gain to a tenth of a point, not convergence.
 CANDIDATE_MAX_NFEV = 10
+
+
+def _refined(
+    model: Model, train: Dataset, blocks: bool = True, max_nfev: int = REFINE_MAX_NFEV
+) -> Model:
+    """``model`` refined by its simulation error on ``train`` (itself where that fails);
+    ``blocks=False`` keeps the blocks' parameters (an effect's delay, clip level, width)."""
+    try:
+        return refine_by_simulation(model, train, max_nfev=max_nfev, blocks=blocks)
+    except (TendonkitError, np.linalg.LinAlgError, ValueError, FloatingPointError):
+        return model
 
 
 def refine_named(

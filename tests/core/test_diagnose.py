@@ -726,3 +726,76 @@ def test_a_named_wiener_model_is_refitted_with_its_own_order():
             same.output_blocks[0].params[key], rel=1e-9, abs=1e-12
         )
     assert structure_builder(other, arx.create(na=2, nb=2)) is None
+
+
+# -- routes of evidence, screened on the training data ------------------------------------------
+
+
+def _noisy_process(seed: int, n: int = 3000) -> Dataset:
+    """A first-order process (pole 0.95, gain 2) under band-limited input, 20 % output noise:
+    the one-step prediction error is mostly that noise, the free-run error is the model's."""
+    rng = np.random.default_rng(seed)
+    u = lfilter([1.0], [1.0, -0.9], rng.standard_normal(n))
+    y = lfilter([0.0, 0.1], [1.0, -0.95], u)
+    y = y + 0.2 * y.std() * rng.standard_normal(n)
+    exp = Experiment(t=np.arange(n, dtype=float), u=u[:, None], y=y[:, None], name=f"p{seed}")
+    return Dataset(inputs=("u",), outputs=("y",), experiments=(exp,), dt=1.0)
+
+
+class _Truth:
+    """An 'effect' whose extension is a given model (the true one)."""
+
+    name = cause = "actuator_lag"
+
+    def __init__(self, model):
+        self.model = model
+
+    def extend(self, ctx):
+        from tendonkit.diagnose.effect import Extension
+
+        return Extension(model=self.model, params={}, description="", train_gain=1.0)
+
+    def signature(self, ctx, baseline, valid, residuals):
+        return {}
+
+
+def test_a_route_that_shows_nothing_on_the_training_data_costs_the_finding_nothing():
+    """A 10 % gain error of a slow process: the free run sees it, the one-step prediction
+    (mostly noise) does not.  The routes are screened on the training data, so the finding's
+    p-value is its free run's, not twice it (Bonferroni over a route that could not see it);
+    a model no better in either route keeps both routes."""
+    from tendonkit.diagnose.engine import (
+        Context,
+        score_baseline,
+        screen_routes,
+        try_effect,
+    )
+    from tendonkit.diagnose.residuals import analyse
+    from tendonkit.manager import identifiers
+
+    train, valid = _noisy_process(1), _noisy_process(2)
+    truth = identifiers().get("arx").create(na=1, nb=1, nk=1).identify(train)
+    rep = truth.representation
+    a, b = -0.95, 0.1  # the true coefficients (ARX convention: y + A y[k-1] = B u[k-1])
+    truth = truth.replace(
+        representation=dataclasses.replace(rep, A=(np.array([[a]]),), B=(np.array([[b]]),))
+    )
+    off = truth.replace(
+        representation=dataclasses.replace(rep, A=(np.array([[a]]),), B=(np.array([[0.9 * b]]),))
+    )
+    settings = Settings(0.01, 0.02, 0.25, 0.8, 0, ("actuator_lag",), {}, False)
+    ctx = Context(train=train, baseline=off, identifier=None, residuals=analyse(off, train))
+    screen = screen_routes(ctx, truth, ["simulation", "prediction"], settings)
+    assert screen is not None and screen["kept"] == ["simulation"], screen
+    assert screen["training_p_values"]["simulation"] < 1e-6
+    assert screen["training_p_values"]["prediction"] > 0.5
+    same = screen_routes(ctx, off, ["simulation", "prediction"], settings)
+    assert same is not None and same["kept"] == ["simulation", "prediction"]
+
+    trial = try_effect(
+        _Truth(truth), "actuator_lag", ctx, score_baseline(off, valid), valid, settings
+    )
+    assert not isinstance(trial, str)
+    assert trial.test["routes_screened"]["kept"] == ["simulation"]
+    assert trial.test["p_value"] == trial.p_value < 1e-3  # the free run's own, no factor 2
+    assert trial.test["prediction"]["p_value"] > 0.5

@@ -799,3 +799,22 @@ def test_a_route_that_shows_nothing_on_the_training_data_costs_the_finding_nothi
     assert trial.test["routes_screened"]["kept"] == ["simulation"]
     assert trial.test["p_value"] == trial.p_value < 1e-3  # the free run's own, no factor 2
     assert trial.test["prediction"]["p_value"] > 0.5
+
+
+def test_friction_on_an_output_that_is_a_speed_is_a_sharp_sign_not_a_smooth_curve():
+    """``tanh(y/ε)`` with ε about half a standard deviation is a softening spring of a position
+    as much as a friction of a speed: the friction effect only proposes the sharp sign (on the
+    generic oscillator with a weight's torque at dt 0.01 the smooth one named friction)."""
+    from tendonkit.diagnose.effect import Context
+    from tendonkit.manager import effects
+
+    train = _noisy_process(5)
+    y = train.y[:, 0]
+    assert np.mean(y > 0) > 0.2 and np.mean(y < 0) > 0.2  # the output reverses
+    ctx = Context(train=train, baseline=None, identifier=None, residuals=None)  # type: ignore[arg-type]
+    speed = [
+        p for p, _ in effects().get("coulomb_friction").candidates(ctx)
+        if p["structure"] == "sign of the output (a speed)"
+    ]  # fmt: skip
+    assert speed, "no candidate for an output that is a speed"
+    assert all(eps <= 0.05 * y.std() for p in speed for eps in p["epsilon"]), speed

@@ -8,7 +8,7 @@ are checked in co-simulation against a physics plant FMU.
 from __future__ import annotations
 
 from . import _compat
-from .dataset import Dataset, Experiment
+from .dataset import Dataset, Experiment, validation_problems
 from .errors import (
     DataError,
     FMUError,
@@ -107,4 +107,9 @@ def identify(dataset: Dataset, method: str = "arx", **options: object) -> Model:
     -0.8
     """
     entry = identifiers().get(method)
+    # the same checks as the CLI's reading of a file: a NaN or a constant column is reported,
+    # not turned into a model of zeros or a numerical library's error
+    problems = validation_problems(dataset)
+    if problems:
+        raise DataError(f"identify ({method}) cannot run on these data:", problems)
     return entry.create(**options).identify(dataset)

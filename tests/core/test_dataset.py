@@ -118,3 +118,32 @@ def test_blocked_folds_hold_each_block_out_once_and_fit_on_the_rest():
 
 def _cut(e, n):
     return tk.Experiment(t=e.t[:n], u=e.u[:n], y=e.y[:n], name="short")
+
+
+def test_the_python_api_reports_bad_data_as_the_cli_does():
+    """A dataset built by hand (not through from_csv/from_arrays, which check it) with a NaN
+    and a constant input: identify and diagnose raise DataError listing every problem, not a
+    model of zeros (n4sid) or a numerical library's error (arx)."""
+    import tendonkit as tk
+    from tendonkit.diagnose import diagnose
+
+    rng = np.random.default_rng(0)
+    u = np.hstack([rng.standard_normal((300, 1)), np.ones((300, 1))])
+    y = rng.standard_normal((300, 1))
+    y[50] = np.nan
+    bad = tk.Dataset(
+        inputs=("u", "c"),
+        outputs=("y",),
+        experiments=(tk.Experiment(t=np.arange(300.0), u=u, y=y, name="bad"),),
+        dt=1.0,
+    )
+    for method in ("arx", "n4sid"):
+        with pytest.raises(tk.DataError) as info:
+            tk.identify(bad, method)
+        assert info.value.problems == [
+            "input 'c' is constant (1); it carries no information.",
+            "output 'y' has 1 NaN/inf values (first at row 51, t = 50 s).",
+        ]
+    with pytest.raises(tk.DataError, match=r"training data: output 'y' has 1 NaN") as info:
+        diagnose(bad, bad, alpha=2.0)
+    assert len(info.value.problems) == 5  # 2 per dataset and the option

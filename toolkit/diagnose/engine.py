@@ -52,8 +52,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ..dataset import Dataset
-from ..errors import OptionError, PluginError, TendonkitError
+from ..dataset import Dataset, validation_problems
+from ..errors import DataError, OptionError, PluginError, TendonkitError
 from ..identification import training_fit, without_training_fit
 from ..manager import effects as effect_registry
 from ..manager import identifiers
@@ -215,6 +215,13 @@ def diagnose(
             f"training and validation data differ in signals: {train.inputs}->{train.outputs} "
             f"vs {valid.inputs}->{valid.outputs}."
         )
+    data_problems = [
+        f"{label}: {p}"
+        for label, data in (("training data", train), ("validation data", valid))
+        for p in validation_problems(data)
+    ]
+    if data_problems:
+        raise DataError("diagnose cannot run:", data_problems + problems)
     if problems:
         raise OptionError("diagnose cannot run:", problems)
     # One bar over every stage, so a long baseline identification is not a silent wait.

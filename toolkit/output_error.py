@@ -216,6 +216,11 @@ def _codec(model: Model, blocks: bool = True) -> tuple[FloatArray, Callable[[Flo
     return theta0, decode
 
 
+def free_parameters(model: Model, blocks: bool = True) -> int:
+    """How many parameters :func:`refine` re-estimates in ``model``."""
+    return int(_codec(model, blocks)[0].size)
+
+
 def refine(
     model: Model,
     data: Dataset,

@@ -309,6 +309,11 @@ def test_two_causes_are_named_with_default_options():
     assert d.baseline_choice["dead_time_left_to_diagnosis"] == {"f1": 3, "f2": 3}
     assert set(d.causes) == {"input_delay", "nonlinear_stiffness"}
     assert d.steps[-1].cause == "none"
+    # The final model's refinement: checked on held-out training data, then continued on all
+    # of it from the check's refinement (not started again), the notes saying both.
+    notes = d.extended.provenance.notes
+    assert "refined by simulation error on the first 75% of the training data" in notes, notes
+    assert notes.endswith("continued on all of it"), notes
 
 
 def _hammerstein_wiener(seed: int, n: int, where: str) -> Dataset:

@@ -18,6 +18,7 @@ from .errors import (
     SchemaError,
     SimulationError,
     TendonkitError,
+    raise_if,
 )
 from .hookspecs import hookimpl
 from .manager import effects, identifiers
@@ -109,7 +110,7 @@ def identify(dataset: Dataset, method: str = "arx", **options: object) -> Model:
     entry = identifiers().get(method)
     # the same checks as the CLI's reading of a file: a NaN or a constant column is reported,
     # not turned into a model of zeros or a numerical library's error
-    problems = validation_problems(dataset)
-    if problems:
-        raise DataError(f"identify ({method}) cannot run on these data:", problems)
+    raise_if(
+        validation_problems(dataset), DataError, f"identify ({method}) cannot run on these data:"
+    )
     return entry.create(**options).identify(dataset)

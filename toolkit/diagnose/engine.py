@@ -53,7 +53,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..dataset import Dataset, validation_problems
-from ..errors import DataError, OptionError, PluginError, TendonkitError
+from ..errors import DataError, OptionError, PluginError, TendonkitError, raise_if
 from ..identification import training_fit, without_training_fit
 from ..manager import effects as effect_registry
 from ..manager import identifiers
@@ -221,10 +221,12 @@ def diagnose(
         for label, data in (("training data", train), ("validation data", valid))
         for p in validation_problems(data)
     ]
-    if data_problems:
-        raise DataError("diagnose cannot run:", data_problems + problems)
-    if problems:
-        raise OptionError("diagnose cannot run:", problems)
+    # bad data is a DataError (listing the option problems too), bad options an OptionError
+    raise_if(
+        data_problems + problems,
+        DataError if data_problems else OptionError,
+        "diagnose cannot run:",
+    )
     # One bar over every stage, so a long baseline identification is not a silent wait.
     bar = tqdm(
         total=len(settings.effects) + 2,
@@ -990,16 +992,13 @@ def _continued(model: Model, checked: Model, refined: Model, train: Dataset) -> 
 
 def _same_parameters(a: Model, b: Model) -> bool:
     """Whether two models have the same structure (the refinement's parameter vector)."""
-    try:
-        return bool(
-            type(a.representation) is type(b.representation)
-            and free_parameters(a) == free_parameters(b)
-            and [k.kind for k in a.input_blocks] == [k.kind for k in b.input_blocks]
-            and [k.kind for k in a.output_blocks] == [k.kind for k in b.output_blocks]
-            and getattr(a.representation, "terms", ()) == getattr(b.representation, "terms", ())
-        )
-    except (TendonkitError, ValueError, AttributeError):
-        return False
+    return bool(
+        type(a.representation) is type(b.representation)
+        and free_parameters(a) == free_parameters(b)
+        and [k.kind for k in a.input_blocks] == [k.kind for k in b.input_blocks]
+        and [k.kind for k in a.output_blocks] == [k.kind for k in b.output_blocks]
+        and getattr(a.representation, "terms", ()) == getattr(b.representation, "terms", ())
+    )
 
 
 def _refinement_refused(build: Any, train: Dataset) -> tuple[str, Model | None]:

@@ -806,6 +806,73 @@ def test_a_route_that_shows_nothing_on_the_training_data_costs_the_finding_nothi
     assert trial.test["prediction"]["p_value"] > 0.5
 
 
+class _Fixed:
+    """An identifier that always gives the same model (a baseline that is not refitted)."""
+
+    name = "fixed"
+
+    def __init__(self, model):
+        self.model = model
+
+    def identify(self, data):
+        return self.model
+
+
+def test_a_validation_record_short_against_tau_gains_the_training_records_held_out_blocks():
+    """The same 10 % gain error of a slow process, with 200 validation samples (six batches of
+    four autocorrelation times: p = 0.05 there) and 3,000 training samples.  The held-out
+    blocks of the training record are a third route: counted in the Bonferroni factor from the
+    start (p = 1 in its place), computed for a finding that could name a cause and is not
+    significant without it, and then significant.  No fold's models see its held-out block."""
+    from tendonkit.diagnose.engine import (
+        HELD_OUT_DEFERRED,
+        Context,
+        _held_out_folds,
+        complete_held_out,
+        score_baseline,
+        try_effect,
+    )
+    from tendonkit.diagnose.residuals import analyse
+    from tendonkit.manager import identifiers
+
+    train, valid = _noisy_process(1), _noisy_process(10, n=200)
+    truth = identifiers().get("arx").create(na=1, nb=1, nk=1).identify(train)
+    rep = truth.representation
+    a, b = -0.95, 0.1
+    truth = truth.replace(
+        representation=dataclasses.replace(rep, A=(np.array([[a]]),), B=(np.array([[b]]),))
+    )
+    off = truth.replace(
+        representation=dataclasses.replace(rep, A=(np.array([[a]]),), B=(np.array([[0.9 * b]]),))
+    )
+    settings = Settings(0.01, 0.02, 0.25, 0.8, 0, ("actuator_lag",), {}, False)
+    ctx = Context(train=train, baseline=off, identifier=_Fixed(off), residuals=analyse(off, train))
+    trial = try_effect(
+        _Truth(truth), "actuator_lag", ctx, score_baseline(off, valid), valid, settings
+    )
+    assert not isinstance(trial, str)
+    assert trial.test["n_batches"] < 10 and trial.test["routes"] == 3
+    assert trial.test["held_out"] == {"p_value": 1.0, "reason": HELD_OUT_DEFERRED}
+    assert trial.p_value > settings.alpha  # the validation record alone does not show it
+
+    class Registry:
+        def get(self, name):
+            return _Truth(truth)
+
+    (done,) = complete_held_out([trial], Registry(), ctx, settings)
+    held = done.test["held_out"]
+    assert held["folds"] == 4 and held["samples"] == 3000
+    assert held["p_value"] < 1e-6
+    assert done.p_value == pytest.approx(3 * held["p_value"])
+
+    folds = _held_out_folds(ctx)
+    assert len(folds) == 4
+    for fold, held_data, _ in folds:
+        seen = np.concatenate([e.t for e in fold.train.experiments])
+        out = np.concatenate([e.t for e in held_data.experiments])
+        assert not np.intersect1d(seen, out).size and seen.size + out.size == 3000
+
+
 def test_friction_on_an_output_that_is_a_speed_is_a_sharp_sign_not_a_smooth_curve():
     """``tanh(y/ε)`` with ε about half a standard deviation is a softening spring of a position
     as much as a friction of a speed: the friction effect only proposes the sharp sign (on the

@@ -31,6 +31,8 @@ The procedure, for any registered identifier as the baseline and any registered 
    combination ``2·min(p_loss, p_direct)`` of the two routes.  The loss test's two routes
    (free run, one-step prediction) are screened on the training data first
    (:func:`screen_routes`): a route that shows nothing there does not count in the factor.
+   Where the validation record is short against the errors' autocorrelation time, held-out
+   blocks of the training record add a route (:func:`held_out_test`, :func:`complete_held_out`).
 6. **Naming.** The significant finding with the largest gain names the cause; with none the
    cause is ``none``.  Parsimony breaks ties: a significant finding with fewer added
    parameters, at least ``tie_ratio`` of the best gain, that the best one does not beat
@@ -250,6 +252,7 @@ def diagnose(
     )
     bar.update()
     trials, skipped = run_effects(registry, settings.effects, ctx, ref, valid, settings, bar)
+    trials = complete_held_out(trials, registry, ctx, settings)
     findings = adjust(trials, settings)
     cross = cross_gains(trials, registry, train, valid, settings, ctx, ref)
     diagnosis = conclude(findings, trials, base, ref, train, settings, skipped, valid, cross)
@@ -576,12 +579,7 @@ def try_effect(
         return f"{type(exc).__name__}: {exc}"
     if ext is None:
         return "not applicable to these data"
-    if isinstance(ctx.identifier, RefinedFallback):
-        # the baseline is at its simulation-error optimum: the extension is scored at its own
-        refined = _refined(ext.model, ctx.train, blocks=False, max_nfev=CANDIDATE_MAX_NFEV)
-        ext = dataclasses.replace(
-            ext, model=refined, train_gain=ctx.score(refined) - ctx.baseline_score
-        )
+    ext = _at_fallback_optimum(ext, ctx)
     baseline = ctx.baseline
     sim = simulate_all(ext.model, valid)
     f = fit(ref.y, sim)
@@ -611,11 +609,22 @@ def try_effect(
     if direct is not None:
         routes.append(direct["p_value"])
         test_info["direct"] = direct
+    gain = _mean(ext_fit) - _mean(ref.fit) if np.all(np.isfinite(f)) else -math.inf
+    if test.n_batches < HELD_OUT_BELOW:
+        # The route counts in the factor whenever the record is short.  Its p-value is 1
+        # (conservative) until complete_held_out computes it, only for the findings that
+        # could name a cause and are not significant without it.
+        could = gain >= settings.min_gain and ext.train_gain > 0
+        routes.append(1.0)
+        test_info["held_out"] = {
+            "p_value": 1.0,
+            "reason": HELD_OUT_DEFERRED if could else "the finding cannot name a cause",
+        }
     # Several routes to the same finding: Bonferroni over them keeps its level.
     p_value = min(1.0, len(routes) * min(routes))
+    test_info["routes"] = len(routes)
     if len(routes) > 1 or len(loss_routes) > 1:
         test_info["loss_p_value"] = test.p_value
-    gain = _mean(ext_fit) - _mean(ref.fit) if np.all(np.isfinite(f)) else -math.inf
     evidence = effect.signature(ctx, baseline, valid, ref.residuals) or {}
     return Trial(
         cause=effect.cause,
@@ -635,6 +644,137 @@ def try_effect(
         build=ext.build,
         prediction_loss=pred,
     )
+
+
+def _at_fallback_optimum(ext: Extension, ctx: Context) -> Extension:
+    """On a refined N4SID fallback the baseline is at its simulation-error optimum, so the
+    extension is scored at its own (a few iterations); elsewhere ``ext`` as it is."""
+    if not isinstance(ctx.identifier, RefinedFallback):
+        return ext
+    refined = _refined(ext.model, ctx.train, blocks=False, max_nfev=CANDIDATE_MAX_NFEV)
+    return dataclasses.replace(
+        ext, model=refined, train_gain=ctx.score(refined) - ctx.baseline_score
+    )
+
+
+#: Below this many batches of the validation test's free run (a validation record a few
+#: autocorrelation times long), held-out blocks of the training record add a route of
+#: evidence (:func:`held_out_test`).
+HELD_OUT_BELOW = 10
+#: Blocks of each training experiment held out in turn by that route.
+HELD_OUT_FOLDS = 4
+
+_FIT_ERRORS = (
+    TendonkitError,
+    np.linalg.LinAlgError,
+    ValueError,
+    FloatingPointError,
+    OverflowError,
+)
+
+
+def _held_out_folds(ctx: Context) -> list[tuple[Context, Dataset, FloatArray]]:
+    """Per fold of :meth:`Dataset.blocked_folds`: the baseline refitted on the rest of the
+    training data (as a :class:`Context` the effects extend), the held-out blocks, and the
+    baseline's free-run loss on them.  Cached on ``ctx``; empty when a fold fails."""
+    cache = ctx._cache
+    if "held_out" not in cache:
+        folds: list[tuple[Context, Dataset, FloatArray]] = []
+        try:
+            for rest, held in ctx.train.blocked_folds(HELD_OUT_FOLDS, 20, 20):
+                base = ctx.refit(rest)
+                if isinstance(ctx.identifier, RefinedFallback):
+                    base = _refined(base, rest)
+                y, sim = _sim_pair(base, held)
+                fold = Context(
+                    train=rest,
+                    baseline=base,
+                    identifier=ctx.identifier,
+                    residuals=analyse(base, rest),
+                    seed=ctx.seed,
+                    max_order=ctx.max_order,
+                )
+                folds.append((fold, held, _loss(y, sim)))
+        except _FIT_ERRORS:
+            folds = []
+        cache["held_out"] = folds
+    return list(cache["held_out"])
+
+
+HELD_OUT_DEFERRED = "deferred: the other routes are significant"
+
+
+def complete_held_out(
+    trials: Sequence[Trial], registry: Any, ctx: Context, settings: Settings
+) -> list[Trial]:
+    """The held-out route (:func:`held_out_test`) of the trials that need it.
+
+    :func:`try_effect` counts the route in a finding's Bonferroni factor wherever the
+    validation record is short, with p = 1 in its place.  Here it is computed for the
+    findings that could name a cause (validation gain at least ``min_gain``, a positive
+    training gain) and are not significant after the Holm adjustment without it: every
+    p-value is then at least the one with every route computed, so the adjustment keeps its
+    level, and the findings already significant (whose p-value could only fall) are spared
+    the refits.
+    """
+    out = list(trials)
+    pending = [
+        i
+        for i, t in enumerate(out)
+        if t.test.get("held_out", {}).get("reason") == HELD_OUT_DEFERRED
+    ]
+    if not pending:
+        return out
+    significant = {f.effect for f in adjust(out, settings) if f.significant}
+    for i in pending:
+        t = out[i]
+        if t.effect in significant:
+            continue
+        held = held_out_test(registry.get(t.effect), ctx, settings)
+        info: dict[str, Any] = (
+            held if held is not None else {"p_value": 1.0, "reason": "a fold cannot be fitted"}
+        )
+        p = min(t.p_value, float(t.test["routes"]) * float(info["p_value"]), 1.0)
+        out[i] = dataclasses.replace(t, p_value=p, test={**t.test, "held_out": info})
+    return out
+
+
+def held_out_test(effect: Effect, ctx: Context, settings: Settings) -> dict[str, Any] | None:
+    """The effect tested on held-out blocks of the *training* data: a route of evidence for a
+    validation record too short against the errors' autocorrelation time.
+
+    Each training experiment is cut into ``HELD_OUT_FOLDS`` contiguous blocks; fold ``j``
+    refits the baseline on the other blocks, lets the effect build its extension there
+    exactly as on the whole record (its own choice among its candidates, on that data only),
+    and simulates both on block ``j``.  The losses of every fold are tested together by
+    :func:`loss_test` with the same margin.  Nothing in a fold's models has seen its
+    held-out block, so under the null hypothesis (the structure does not remove more than
+    the margin of the error energy out of sample) the p-value keeps its level, as on the
+    validation data; it joins the finding's other routes in the Bonferroni factor.  The
+    validation gain must still reach ``min_gain``.  On the coupled drives (2 × 100
+    validation samples, five batches) the rectifier's curve gains +24 points with p = 0.08
+    on the validation record and p < 1e-6 on the held-out blocks of the 2 × 400 training
+    samples (docs/diagnose.md, *Statistics*).  None where the effect does not apply or a
+    fold cannot be fitted.
+    """
+    folds = _held_out_folds(ctx)
+    if not folds:
+        return None
+    base_losses, ext_losses = [], []
+    try:
+        for fold, held, base_loss in folds:
+            ext = effect.extend(fold)
+            if ext is None:
+                return None
+            y, sim = _sim_pair(_at_fallback_optimum(ext, fold).model, held)
+            base_losses.append(base_loss)
+            ext_losses.append(_loss(y, sim))
+    except _FIT_ERRORS:
+        return None
+    t = loss_test(
+        np.concatenate(base_losses), np.concatenate(ext_losses), margin=settings.min_relative_gain
+    )
+    return {**t.to_dict(), "folds": len(folds), "samples": int(sum(len(b) for b in base_losses))}
 
 
 def _training_losses(model: Model, train: Dataset) -> dict[str, FloatArray | None]:
@@ -858,6 +998,7 @@ def continue_sequence(
         start, ref, ctx = _start_from(build, train, valid, settings)
         bar.update()
         step_trials, step_skipped = run_effects(registry, names, ctx, ref, valid, settings, bar)
+        step_trials = complete_held_out(step_trials, registry, ctx, settings)
         findings = adjust(step_trials, settings)
         base = Baseline(method="previous step", identifier=None, model=start, check=None)
         cross = cross_gains(step_trials, registry, train, valid, settings, ctx, ref)

@@ -372,6 +372,16 @@ def evidence_notes(summary: dict[str, Any]) -> list[str]:
             f"p = {best['test']['loss_p_value']:.2g} (before the adjustment for trying every "
             "effect)."
         )
+    held = best.get("test", {}).get("held_out") or {}
+    if "folds" in held and held["p_value"] < best["test"]["p_value"]:
+        notes.append(
+            f"shown on held-out blocks of the training data ({held['folds']} folds, "
+            f"{held['samples']} samples; p = {held['p_value']:.2g}); the validation record is "
+            f"{best['test']['n_batches']} batches of {best['test']['batch_length']} samples "
+            f"against an autocorrelation time of {best['test']['tau']:.0f}, and its free run "
+            f"alone gives p = {best['test']['p_value']:.2g} (before the adjustment for trying "
+            "every effect)."
+        )
     larger = [f for f in findings if f["cause"] != best["cause"] and f["gain"] > best["gain"]]
     if larger:
         top = larger[0]

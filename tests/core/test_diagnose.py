@@ -823,7 +823,8 @@ def test_a_validation_record_short_against_tau_gains_the_training_records_held_o
     four autocorrelation times: p = 0.05 there) and 3,000 training samples.  The held-out
     blocks of the training record are a third route: counted in the Bonferroni factor from the
     start (p = 1 in its place), computed for a finding that could name a cause and is not
-    significant without it, and then significant.  No fold's models see its held-out block."""
+    significant without it — the effect extending each fold's training data, never the whole
+    record — and then significant.  A finding significant without it is spared the refits."""
     from tendonkit.diagnose.engine import (
         HELD_OUT_DEFERRED,
         Context,
@@ -855,22 +856,35 @@ def test_a_validation_record_short_against_tau_gains_the_training_records_held_o
     assert trial.test["held_out"] == {"p_value": 1.0, "reason": HELD_OUT_DEFERRED}
     assert trial.p_value > settings.alpha  # the validation record alone does not show it
 
+    seen: list[int] = []
+
+    class Spy(_Truth):
+        def extend(self, ctx):
+            seen.append(sum(e.n_samples for e in ctx.train.experiments))
+            return super().extend(ctx)
+
     class Registry:
         def get(self, name):
-            return _Truth(truth)
+            return Spy(truth)
 
     (done,) = complete_held_out([trial], Registry(), ctx, settings)
+    assert seen == [2250] * 4  # each fold's three blocks, never the whole record
     held = done.test["held_out"]
-    assert held["folds"] == 4 and held["samples"] == 3000
-    assert held["p_value"] < 1e-6
+    # one sample per block is where the simulations start from the data: left out
+    assert held["folds"] == 4 and held["samples"] == 3000 - 4
+    assert held["p_value"] < 1e-6 and held["p_route"] == held["p_value"]  # one trial: m·w = 1
     assert done.p_value == pytest.approx(3 * held["p_value"])
+
+    lenient = dataclasses.replace(settings, alpha=0.5)
+    (kept,) = complete_held_out([trial], Registry(), ctx, lenient)
+    assert kept is trial and len(seen) == 4  # significant without it: not computed
 
     folds = _held_out_folds(ctx)
     assert len(folds) == 4
     for fold, held_data, _ in folds:
-        seen = np.concatenate([e.t for e in fold.train.experiments])
+        fitted = np.concatenate([e.t for e in fold.train.experiments])
         out = np.concatenate([e.t for e in held_data.experiments])
-        assert not np.intersect1d(seen, out).size and seen.size + out.size == 3000
+        assert not np.intersect1d(fitted, out).size and fitted.size + out.size == 3000
 
 
 def test_friction_on_an_output_that_is_a_speed_is_a_sharp_sign_not_a_smooth_curve():

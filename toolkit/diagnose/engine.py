@@ -65,7 +65,7 @@ from ..output_error import refine as refine_by_simulation
 from ..parallel import map_tasks
 from ..predict import predict
 from ..schema import ARX, Model
-from ..simulate import aligned
+from ..simulate import aligned, initial_span
 from .effect import (
     Context,
     DirectTest,
@@ -611,9 +611,11 @@ def try_effect(
         test_info["direct"] = direct
     gain = _mean(ext_fit) - _mean(ref.fit) if np.all(np.isfinite(f)) else -math.inf
     if test.n_batches < HELD_OUT_BELOW:
-        # The route counts in the factor whenever the record is short.  Its p-value is 1
-        # (conservative) until complete_held_out computes it, only for the findings that
-        # could name a cause and are not significant without it.
+        # The route counts in the factor whenever the record is short against the loss
+        # difference's autocorrelation time — the test's own batch rule, which reads how
+        # slowly the difference moves, not its mean.  Its p-value is 1 (conservative) until
+        # complete_held_out computes it, only for the findings that could name a cause and
+        # are not significant without it.
         could = gain >= settings.min_gain and ext.train_gain > 0
         routes.append(1.0)
         test_info["held_out"] = {
@@ -675,8 +677,9 @@ _FIT_ERRORS = (
 
 def _held_out_folds(ctx: Context) -> list[tuple[Context, Dataset, FloatArray]]:
     """Per fold of :meth:`Dataset.blocked_folds`: the baseline refitted on the rest of the
-    training data (as a :class:`Context` the effects extend), the held-out blocks, and the
-    baseline's free-run loss on them.  Cached on ``ctx``; empty when a fold fails."""
+    training data (as a :class:`Context` the effects extend: ``fold.baseline``), the held-out
+    blocks, and the baseline's free-run loss on them.  Cached on ``ctx``; empty when a fold
+    fails."""
     cache = ctx._cache
     if "held_out" not in cache:
         folds: list[tuple[Context, Dataset, FloatArray]] = []
@@ -718,6 +721,7 @@ def complete_held_out(
     the refits.
     """
     out = list(trials)
+    weights = np.array([max(t.train_gain, 0.0) for t in out])
     pending = [
         i
         for i, t in enumerate(out)
@@ -730,47 +734,54 @@ def complete_held_out(
         t = out[i]
         if t.effect in significant:
             continue
-        held = held_out_test(registry.get(t.effect), ctx, settings)
-        info: dict[str, Any] = (
-            held if held is not None else {"p_value": 1.0, "reason": "a fold cannot be fitted"}
-        )
-        p = min(t.p_value, float(t.test["routes"]) * float(info["p_value"]), 1.0)
+        info = held_out_test(registry.get(t.effect), ctx, settings)
+        # The Holm weights are the training gains, and this route reads the training record
+        # too: its p-value enters scaled by m·w, so that it is compared with α/m (unweighted)
+        # whatever the weight.
+        share = len(out) * weights[i] / weights.sum() if weights.sum() > 0 else 1.0
+        info["p_route"] = min(1.0, float(info["p_value"]) * share)
+        p = min(t.p_value, float(t.test["routes"]) * info["p_route"], 1.0)
         out[i] = dataclasses.replace(t, p_value=p, test={**t.test, "held_out": info})
     return out
 
 
-def held_out_test(effect: Effect, ctx: Context, settings: Settings) -> dict[str, Any] | None:
+def held_out_test(effect: Effect, ctx: Context, settings: Settings) -> dict[str, Any]:
     """The effect tested on held-out blocks of the *training* data: a route of evidence for a
     validation record too short against the errors' autocorrelation time.
 
     Each training experiment is cut into ``HELD_OUT_FOLDS`` contiguous blocks; fold ``j``
-    refits the baseline on the other blocks, lets the effect build its extension there
-    exactly as on the whole record (its own choice among its candidates, on that data only),
-    and simulates both on block ``j``.  The losses of every fold are tested together by
-    :func:`loss_test` with the same margin.  Nothing in a fold's models has seen its
-    held-out block, so under the null hypothesis (the structure does not remove more than
-    the margin of the error energy out of sample) the p-value keeps its level, as on the
-    validation data; it joins the finding's other routes in the Bonferroni factor.  The
-    validation gain must still reach ``min_gain``.  On the coupled drives (2 × 100
-    validation samples, five batches) the rectifier's curve gains +24 points with p = 0.08
-    on the validation record and p < 1e-6 on the held-out blocks of the 2 × 400 training
-    samples (docs/diagnose.md, *Statistics*).  None where the effect does not apply or a
-    fold cannot be fitted.
+    refits the baseline on the other blocks, lets the effect build its extension there (its
+    own choice among its candidates, on that data only) and simulates both on block ``j``.
+    The first samples of every block, where either model's simulation starts from the
+    measured outputs (:func:`~tendonkit.simulate.initial_span`: an ARX's lags, a state
+    space's estimation window), are left out of both losses: a structure with a longer lag
+    window would otherwise be credited with the samples it copies, once per block.  The
+    losses of every fold are tested together by :func:`loss_test` with the same margin.  No
+    model of a fold is fitted on its held-out samples; the structure choices made on the
+    whole record before the diagnosis (the baseline's orders and offset, a fallback, the
+    blocks of an earlier step) are shared by both models of every fold.  On the coupled
+    drives (2 × 100 validation samples, five batches) the rectifier's curve gains +24 points
+    with p = 0.08 on the validation record and p ≈ 2e-6 on the held-out blocks of the
+    2 × 400 training samples (docs/diagnose.md, step 5).  Returns the test's fields with
+    ``folds`` and ``samples``, or ``p_value`` 1 with the ``reason`` it could not be run.
     """
     folds = _held_out_folds(ctx)
     if not folds:
-        return None
+        return {"p_value": 1.0, "reason": "no held-out blocks (records too short)"}
     base_losses, ext_losses = [], []
     try:
         for fold, held, base_loss in folds:
             ext = effect.extend(fold)
             if ext is None:
-                return None
-            y, sim = _sim_pair(_at_fallback_optimum(ext, fold).model, held)
-            base_losses.append(base_loss)
-            ext_losses.append(_loss(y, sim))
-    except _FIT_ERRORS:
-        return None
+                return {"p_value": 1.0, "reason": "the effect does not apply on a fold"}
+            model = _at_fallback_optimum(ext, fold).model
+            y, sim = _sim_pair(model, held)
+            skip = max(initial_span(fold.baseline), initial_span(model))
+            keep = np.concatenate([np.arange(e.n_samples) >= skip for e in held.experiments])
+            base_losses.append(base_loss[keep])
+            ext_losses.append(_loss(y, sim)[keep])
+    except _FIT_ERRORS as exc:
+        return {"p_value": 1.0, "reason": f"a fold cannot be fitted: {type(exc).__name__}"}
     t = loss_test(
         np.concatenate(base_losses), np.concatenate(ext_losses), margin=settings.min_relative_gain
     )

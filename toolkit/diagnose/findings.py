@@ -373,7 +373,10 @@ def evidence_notes(summary: dict[str, Any]) -> list[str]:
             "effect)."
         )
     held = best.get("test", {}).get("held_out") or {}
-    if "folds" in held and held["p_value"] < best["test"]["p_value"]:
+    decided = "p_route" in held and held["p_route"] * best["test"].get("routes", 1) <= (
+        best["p_value"] * (1 + 1e-9)
+    )
+    if "folds" in held and decided:
         notes.append(
             f"shown on held-out blocks of the training data ({held['folds']} folds, "
             f"{held['samples']} samples; p = {held['p_value']:.2g}); the validation record is "

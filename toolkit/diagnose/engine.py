@@ -90,6 +90,10 @@ from .stats import holm, loss_test, routes_p_value
 
 FloatArray = NDArray[np.float64]
 
+#: What identifying, refining or simulating a model may raise on data it does not suit; the
+#: stages that meet it fall back (keep the model, skip the route) instead of failing.
+_NUMERICAL_ERRORS = (TendonkitError, np.linalg.LinAlgError, ValueError, FloatingPointError)
+
 
 def _loss(y: FloatArray, y_hat: FloatArray) -> FloatArray:
     var = np.var(y, axis=0)
@@ -666,13 +670,9 @@ HELD_OUT_BELOW = 10
 #: Blocks of each training experiment held out in turn by that route.
 HELD_OUT_FOLDS = 4
 
-_FIT_ERRORS = (
-    TendonkitError,
-    np.linalg.LinAlgError,
-    ValueError,
-    FloatingPointError,
-    OverflowError,
-)
+#: What fitting a structure on other data may raise besides :data:`_NUMERICAL_ERRORS` (an
+#: effect's ``extend``, as :func:`try_effect` allows).
+_FIT_ERRORS = (*_NUMERICAL_ERRORS, OverflowError)
 
 
 def _held_out_folds(ctx: Context) -> list[tuple[Context, Dataset, FloatArray]]:
@@ -721,7 +721,7 @@ def complete_held_out(
     the refits.
     """
     out = list(trials)
-    weights = np.array([max(t.train_gain, 0.0) for t in out])
+    weights = np.array(_holm_weights(out))
     pending = [
         i
         for i, t in enumerate(out)
@@ -793,7 +793,7 @@ def _training_losses(model: Model, train: Dataset) -> dict[str, FloatArray | Non
     try:
         y, sim = _sim_pair(model, train)
         simulation: FloatArray | None = _loss(y, sim)
-    except (TendonkitError, np.linalg.LinAlgError, ValueError, FloatingPointError):
+    except _NUMERICAL_ERRORS:
         simulation = None
     return {"simulation": simulation, "prediction": prediction_losses(model, train)}
 
@@ -1045,7 +1045,7 @@ def _refined(
     ``blocks=False`` keeps the blocks' parameters (an effect's delay, clip level, width)."""
     try:
         return refine_by_simulation(model, train, max_nfev=max_nfev, blocks=blocks)
-    except (TendonkitError, np.linalg.LinAlgError, ValueError, FloatingPointError):
+    except _NUMERICAL_ERRORS:
         return model
 
 
@@ -1090,7 +1090,7 @@ def refine_named(
         start, budget = checked, REFINE_CONTINUE_NFEV
     try:
         refined = refine_by_simulation(start, train, max_nfev=budget)
-    except (TendonkitError, np.linalg.LinAlgError, ValueError, FloatingPointError):
+    except _NUMERICAL_ERRORS:
         return model, build, tested
     if start is not model:
         refined = _continued(model, start, refined, train)
@@ -1172,7 +1172,7 @@ def _refinement_refused(build: Any, train: Dataset) -> tuple[str, Model | None]:
     try:
         plain = build(fit_part)
         refined = refine_by_simulation(plain, fit_part, max_nfev=REFINE_MAX_NFEV)
-    except (TendonkitError, np.linalg.LinAlgError, ValueError, FloatingPointError):
+    except _NUMERICAL_ERRORS:
         return "", None
     if refined is plain:
         return "", None
@@ -1265,9 +1265,7 @@ def adjust(trials: Sequence[Trial], settings: Settings) -> list[Finding]:
     the error budget α, and an extension that did not improve the training fit cannot name a
     cause.
     """
-    adjusted = holm(
-        [t.p_value for t in trials], [max(t.train_gain, 0.0) for t in trials] if trials else None
-    )
+    adjusted = holm([t.p_value for t in trials], _holm_weights(trials) if trials else None)
     keep = [f.name for f in dataclasses.fields(Finding)]
     findings = [
         Finding(
@@ -1283,6 +1281,11 @@ def adjust(trials: Sequence[Trial], settings: Settings) -> list[Finding]:
     ]
     findings.sort(key=lambda f: f.gain, reverse=True)
     return findings
+
+
+def _holm_weights(trials: Sequence[Trial]) -> list[float]:
+    """The weights of :func:`adjust`'s Holm adjustment: the trials' training gains (≥ 0)."""
+    return [max(t.train_gain, 0.0) for t in trials]
 
 
 def _seen_directly(t: Trial) -> bool:
@@ -1454,7 +1457,7 @@ def check_baseline(baseline: Model, train: Dataset, method: str) -> dict[str, An
         y = aligned(baseline, train).y
         e_base = float(np.mean(_loss(y, simulate_all(baseline, train))))
         e_ref = float(np.mean(_loss(y, simulate_all(ref, train))))
-    except (TendonkitError, np.linalg.LinAlgError, ValueError, FloatingPointError):
+    except _NUMERICAL_ERRORS:
         return None
     ratio = e_base / e_ref if e_ref > 0 else math.inf
     return {
@@ -1476,7 +1479,7 @@ def _refined_gain(f: Finding, train: Dataset, valid: Dataset, ref: Reference) ->
     try:
         model = refine_by_simulation(f.model, train, max_nfev=REFINE_MAX_NFEV)
         return mean_fit(model, valid) - _mean(ref.fit)
-    except (TendonkitError, np.linalg.LinAlgError, ValueError, FloatingPointError):
+    except _NUMERICAL_ERRORS:
         return f.gain
 
 
@@ -1630,7 +1633,7 @@ def cross_gains(
             _, base, sub = _start_from(build, train, valid, settings)
             # a check of a tie, not a finding: whatever goes wrong leaves the tie as it is
             trial = try_effect(registry.get(second), second, sub, base, valid, settings)
-        except (TendonkitError, np.linalg.LinAlgError, ValueError, FloatingPointError):
+        except _NUMERICAL_ERRORS:
             return None
         if isinstance(trial, Trial) and math.isfinite(trial.gain):
             memo[first, second] = trial.gain

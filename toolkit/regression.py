@@ -50,7 +50,24 @@ def scaled_lstsq(Phi: FloatArray, Y: FloatArray, ridge: float = 0.0) -> FloatArr
 
 
 #: Rows per block of the tall QR (a block of ~50 columns stays in cache).
-QR_BLOCK = 4096
+QR_BLOCK = 2048
+
+
+def _householder_r(A: FloatArray) -> FloatArray:
+    """The ``(min(n, c), c)`` triangular factor of ``A`` by LAPACK's Householder ``geqrf``.
+
+    Called directly: ``scipy.linalg.qr(mode="r")`` adds a workspace query, a copy and the
+    extraction of the full ``(n, c)`` factor, 1.5-2x the cost of the factorisation itself on
+    the regressions of an ARX (measured in benchmarks/README.md, "Identification").
+    """
+    # lazy: heavy (scipy)
+    from scipy.linalg import get_lapack_funcs
+
+    (geqrf,) = get_lapack_funcs(("geqrf",), (A,))
+    qr, _, _, info = geqrf(A)
+    if info != 0:  # pragma: no cover - only for invalid arguments
+        raise ValueError(f"LAPACK geqrf failed (info {info}).")
+    return np.triu(qr[: min(A.shape)])
 
 
 def r_factor(A: FloatArray) -> FloatArray:
@@ -61,15 +78,12 @@ def r_factor(A: FloatArray) -> FloatArray:
     factors gives the same ``R`` (up to the signs of its rows, which least squares ignore) with
     the same orthogonal-transformation accuracy, several times faster on 10⁵ rows.
     """
-    # lazy: heavy (scipy)
-    from scipy.linalg import qr
-
     n, c = A.shape
     block = max(QR_BLOCK, 4 * c)
     if n <= 2 * block:
-        return np.asarray(qr(A, mode="r", check_finite=False)[0])
-    parts = [qr(A[i : i + block], mode="r", check_finite=False)[0][:c] for i in range(0, n, block)]
-    return np.asarray(qr(np.vstack(parts), mode="r", check_finite=False)[0])
+        return _householder_r(A)
+    parts = [_householder_r(A[i : i + block]) for i in range(0, n, block)]
+    return _householder_r(np.vstack(parts))
 
 
 def term_columns_of(terms: Sequence[Term], signals: dict[str, FloatArray], n: int) -> FloatArray:

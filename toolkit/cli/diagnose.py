@@ -225,6 +225,14 @@ def render_diagnosis(summary: dict[str, Any]) -> str:
             f"{check['error_ratio']:.1f}x that of a linear n4sid model (output noise biases an "
             f"equation-error fit); {what}."
         )
+    pem = check.get("pem") if check else None
+    if pem and pem["fallback"]:
+        lines.append(
+            f"note: the baseline's free run fits its own training data {pem['baseline_fit']:.1f} %;"
+            f" pem's linear model (order {pem['order']}, chosen on held-out data) fits "
+            f"{pem['reference_fit']:.1f} % and is the baseline instead, each effect's extension "
+            "built by n4sid of that order and refined by its simulation error."
+        )
     if summary["baseline"].get("unfit"):
         lines.append(f"note: unfit for diagnosis: {summary['baseline']['unfit']}")
     ext = summary["extended"]

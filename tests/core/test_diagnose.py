@@ -868,6 +868,7 @@ def test_a_validation_record_short_against_tau_gains_the_training_records_held_o
     record — and then significant.  A finding significant without it is spared the refits."""
     from tendonkit.diagnose.engine import (
         HELD_OUT_DEFERRED,
+        HELD_OUT_OUTRANKED,
         Context,
         _held_out_folds,
         complete_held_out,
@@ -919,6 +920,19 @@ def test_a_validation_record_short_against_tau_gains_the_training_records_held_o
     lenient = dataclasses.replace(settings, alpha=0.5)
     (kept,) = complete_held_out([trial], Registry(), ctx, lenient)
     assert kept is trial and len(seen) == 4  # significant without it: not computed
+
+    # Beside a significant finding that gains more than 1/tie_ratio times as much, the route
+    # cannot change the cause named: not computed.  Within tie_ratio it is (parsimony).
+    def rival(gain: float):
+        return dataclasses.replace(
+            trial, effect="input_delay", cause="input_delay", gain=gain, p_value=1e-12
+        )
+
+    outranked, _ = complete_held_out([trial, rival(trial.gain / 0.7)], Registry(), ctx, settings)
+    assert len(seen) == 4 and outranked.test["held_out"]["reason"] == HELD_OUT_OUTRANKED
+    assert outranked.p_value == trial.p_value
+    close, _ = complete_held_out([trial, rival(trial.gain / 0.9)], Registry(), ctx, settings)
+    assert len(seen) == 8 and close.test["held_out"]["p_value"] < 1e-6
 
     folds = _held_out_folds(ctx)
     assert len(folds) == 4

@@ -714,6 +714,28 @@ def _held_out_folds(ctx: Context) -> list[tuple[Context, Dataset, FloatArray]]:
 
 
 HELD_OUT_DEFERRED = "deferred: the other routes are significant"
+#: Why the held-out route of a finding was not computed although it was deferred.
+HELD_OUT_OUTRANKED = (
+    "not computed: a significant finding gains more than 1/tie_ratio times as much, so this "
+    "one cannot name the cause (its p-value stands without the route)"
+)
+
+
+def _cannot_name(t: Trial, significant: Sequence[Finding], tie_ratio: float) -> bool:
+    """Whether finding ``t``, significant or not, could not change the cause named.
+
+    The cause is the significant finding with the largest gain, unless a simpler one gains at
+    least ``tie_ratio`` of it (parsimony) or it is a special case of it (the contest of
+    :func:`_name_cause`); a finding whose gain is below ``tie_ratio`` of a significant one's and
+    that is no special case of a significant cause is neither.  Where a contest between two
+    significant findings may name the one with the smaller gain, every finding may matter.
+    """
+    if not significant:
+        return False
+    causes = {f.cause for f in significant}
+    if any(c in SPECIAL_CASES.get(g, ()) for c in causes | {t.cause} for g in causes):
+        return False
+    return bool(t.gain < tie_ratio * max(f.gain for f in significant))
 
 
 def complete_held_out(
@@ -738,10 +760,16 @@ def complete_held_out(
     ]
     if not pending:
         return out
-    significant = {f.effect for f in adjust(out, settings) if f.significant}
+    # the largest gains first: a finding they make significant can leave the others out
+    pending.sort(key=lambda i: -out[i].gain)
     for i in pending:
         t = out[i]
-        if t.effect in significant:
+        found = [f for f in adjust(out, settings) if f.significant]
+        if t.effect in {f.effect for f in found}:
+            continue
+        if _cannot_name(t, found, settings.tie_ratio):
+            held = {**t.test["held_out"], "reason": HELD_OUT_OUTRANKED}
+            out[i] = dataclasses.replace(t, test={**t.test, "held_out": held})
             continue
         info = held_out_test(registry.get(t.effect), ctx, settings)
         # The Holm weights are the training gains, and this route reads the training record

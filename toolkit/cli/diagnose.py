@@ -85,8 +85,9 @@ def add_commands(sub: Any) -> None:
     p.add_argument(
         "--no-fallback",
         action="store_true",
-        help="keep the requested baseline even when a linear n4sid model simulates the training "
-        "data far better (by default diagnose then uses n4sid; see docs/diagnose.md)",
+        help="keep the requested baseline even when a linear n4sid (or, for a baseline that "
+        "fits its own training data below 50 %%, pem) model simulates the training data far "
+        "better (by default diagnose then uses that model; see docs/diagnose.md)",
     )
     p.add_argument("--json", help="write the result as JSON here")
     p.add_argument(

@@ -170,8 +170,9 @@ def diagnose(
         Check the baseline against a linear N4SID model of the training data
         (:func:`check_baseline`) and diagnose against N4SID when the baseline is grossly worse
         (an equation-error estimate biased by output noise): the gains of its extensions would
-        measure that bias, not a cause.  ``False`` keeps the requested baseline (the check is
-        still reported).
+        measure that bias, not a cause; and a baseline that fits its own training data below
+        :data:`POOR_TRAINING_FIT` against ``pem``'s linear model (:func:`check_against_pem`).
+        ``False`` keeps the requested baseline (the N4SID check is still reported).
     max_causes : int
         Most causes named in sequence: after a cause is named, its extended model is the
         baseline of the next step (:func:`continue_sequence`); 1 stops at the first cause.

@@ -19,10 +19,7 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(BIN)/tendonkit demo --out demo-report
 
-# The type checks (one core, ~11 s cold) run beside the test suite rather than before it;
-# --output-sync keeps each one's output in one piece.
-test: $(STAMP) lint
-	$(MAKE) --no-print-directory -j2 --output-sync=target typecheck pytest
+test: $(STAMP) lint typecheck pytest
 
 check: $(STAMP) lint typecheck pytest-fast
 

@@ -63,6 +63,8 @@ def _householder_r(A: FloatArray) -> FloatArray:
     # lazy: heavy (scipy)
     from scipy.linalg import get_lapack_funcs
 
+    if A.shape[0] == 0:
+        return np.zeros((0, A.shape[1]), dtype=A.dtype)
     (geqrf,) = get_lapack_funcs(("geqrf",), (A,))
     qr, _, _, info = geqrf(A)
     if info != 0:  # pragma: no cover - only for invalid arguments

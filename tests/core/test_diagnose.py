@@ -921,18 +921,30 @@ def test_a_validation_record_short_against_tau_gains_the_training_records_held_o
     (kept,) = complete_held_out([trial], Registry(), ctx, lenient)
     assert kept is trial and len(seen) == 4  # significant without it: not computed
 
-    # Beside a significant finding that gains more than 1/tie_ratio times as much, the route
-    # cannot change the cause named: not computed.  Within tie_ratio it is (parsimony).
-    def rival(gain: float):
+    # Beside a significant finding that gains more than 1/tie_ratio times as much and is
+    # significantly better, the route can change neither the cause named nor a tie: not
+    # computed.  Within tie_ratio it is (parsimony), and so it is when the rival is not
+    # significantly better (a tie).
+    def rival(gain: float, factor: float):
+        pred = None if trial.prediction_loss is None else factor * trial.prediction_loss
         return dataclasses.replace(
-            trial, effect="input_delay", cause="input_delay", gain=gain, p_value=1e-12
+            trial,
+            effect="input_delay",
+            cause="input_delay",
+            gain=gain,
+            p_value=1e-12,
+            loss=factor * trial.loss,
+            prediction_loss=pred,
         )
 
-    outranked, _ = complete_held_out([trial, rival(trial.gain / 0.7)], Registry(), ctx, settings)
+    far = rival(trial.gain / 0.7, 0.3)
+    outranked, _ = complete_held_out([trial, far], Registry(), ctx, settings)
     assert len(seen) == 4 and outranked.test["held_out"]["reason"] == HELD_OUT_OUTRANKED
     assert outranked.p_value == trial.p_value
-    close, _ = complete_held_out([trial, rival(trial.gain / 0.9)], Registry(), ctx, settings)
+    close, _ = complete_held_out([trial, rival(trial.gain / 0.9, 0.3)], Registry(), ctx, settings)
     assert len(seen) == 8 and close.test["held_out"]["p_value"] < 1e-6
+    tied, _ = complete_held_out([trial, rival(trial.gain / 0.7, 1.0)], Registry(), ctx, settings)
+    assert len(seen) == 12 and tied.test["held_out"]["p_value"] < 1e-6
 
     folds = _held_out_folds(ctx)
     assert len(folds) == 4

@@ -207,9 +207,13 @@ def render_diagnosis(summary: dict[str, Any]) -> str:
         f"baseline ({summary['baseline']['method']}): fit {summary['baseline']['fit']:.2f} %",
     ]
     choice = summary["baseline"].get("choice")
-    if choice:
-        lines.append(f"note: {choice['statement']}")
     check = summary["baseline"].get("check")
+    if choice:
+        replaced = summary["baseline"]["method"] != "arx"
+        lines.append(
+            f"note: {choice['statement']}"
+            + (" — not the baseline diagnosed: see the fallback below" if replaced else "")
+        )
     if check and check["biased"]:
         what = (
             "diagnosed against n4sid instead"
@@ -227,6 +231,8 @@ def render_diagnosis(summary: dict[str, Any]) -> str:
             f"equation-error fit); {what}."
         )
     pem = check.get("pem") if check else None
+    if pem and pem["fallback"] and check and check["fallback"]:
+        lines[-1] = lines[-1][:-1] + "; then replaced by pem's model (next note)."
     if pem and pem["fallback"]:
         lines.append(
             f"note: the baseline's free run fits its own training data {pem['baseline_fit']:.1f} %;"

@@ -717,26 +717,42 @@ def _held_out_folds(ctx: Context) -> list[tuple[Context, Dataset, FloatArray]]:
 HELD_OUT_DEFERRED = "deferred: the other routes are significant"
 #: Why the held-out route of a finding was not computed although it was deferred.
 HELD_OUT_OUTRANKED = (
-    "not computed: a significant finding gains more than 1/tie_ratio times as much, so this "
-    "one cannot name the cause (its p-value stands without the route)"
+    "not computed: a significant finding gains more than 1/tie_ratio times as much and is "
+    "significantly better, so this one can neither name the cause nor tie with it (its "
+    "p-value stands without the route)"
 )
 
 
-def _cannot_name(t: Trial, significant: Sequence[Finding], tie_ratio: float) -> bool:
-    """Whether finding ``t``, significant or not, could not change the cause named.
+def _contest_possible(causes: set[str]) -> bool:
+    """Whether one of ``causes`` is a special case of another (the contest of
+    :func:`_name_cause` may then name the smaller gain)."""
+    return any(c in SPECIAL_CASES.get(g, ()) for c in causes for g in causes)
+
+
+def _cannot_name(
+    t: Trial, significant: Sequence[Finding], trials: dict[str, Trial], settings: Settings
+) -> bool:
+    """Whether finding ``t``, were it significant, could change neither the cause named nor
+    the tie reported.
 
     The cause is the significant finding with the largest gain, unless a simpler one gains at
     least ``tie_ratio`` of it (parsimony) or it is a special case of it (the contest of
-    :func:`_name_cause`); a finding whose gain is below ``tie_ratio`` of a significant one's and
-    that is no special case of a significant cause is neither.  Where a contest between two
-    significant findings may name the one with the smaller gain, every finding may matter.
+    :func:`_name_cause`); another cause ties with it when it gains at least ``tie_ratio`` of
+    it or the named one is not significantly better (:func:`tie_runner_up`).  So ``t`` is
+    left out only when it gains less than ``tie_ratio`` of the top significant finding, that
+    finding is significantly better than ``t`` (both routes, level ``alpha``), and no contest
+    can name a smaller gain.
     """
     if not significant:
         return False
-    causes = {f.cause for f in significant}
-    if any(c in SPECIAL_CASES.get(g, ()) for c in causes | {t.cause} for g in causes):
+    if _contest_possible({f.cause for f in significant} | {t.cause}):
         return False
-    return bool(t.gain < tie_ratio * max(f.gain for f in significant))
+    top = max(significant, key=lambda f: f.gain)
+    if not t.gain < settings.tie_ratio * top.gain:
+        return False
+    best = trials[top.effect]
+    p = routes_p_value((t.loss, t.prediction_loss), (best.loss, best.prediction_loss))
+    return bool(p < settings.alpha)
 
 
 def complete_held_out(
@@ -761,17 +777,10 @@ def complete_held_out(
     ]
     if not pending:
         return out
-    # the largest gains first: a finding they make significant can leave the others out
-    pending.sort(key=lambda i: -out[i].gain)
-    for i in pending:
+    by_effect = {t.effect: t for t in out}
+
+    def compute(i: int) -> None:
         t = out[i]
-        found = [f for f in adjust(out, settings) if f.significant]
-        if t.effect in {f.effect for f in found}:
-            continue
-        if _cannot_name(t, found, settings.tie_ratio):
-            held = {**t.test["held_out"], "reason": HELD_OUT_OUTRANKED}
-            out[i] = dataclasses.replace(t, test={**t.test, "held_out": held})
-            continue
         info = held_out_test(registry.get(t.effect), ctx, settings)
         # The Holm weights are the training gains, and this route reads the training record
         # too: its p-value enters scaled by m·w, so that it is compared with α/m (unweighted)
@@ -780,6 +789,28 @@ def complete_held_out(
         info["p_route"] = min(1.0, float(info["p_value"]) * share)
         p = min(t.p_value, float(t.test["routes"]) * info["p_route"], 1.0)
         out[i] = dataclasses.replace(t, p_value=p, test={**t.test, "held_out": info})
+
+    # the largest gains first: a finding they make significant can leave the others out
+    pending.sort(key=lambda i: -out[i].gain)
+    skipped: list[int] = []
+    for i in pending:
+        t = out[i]
+        found = [f for f in adjust(out, settings) if f.significant]
+        if t.effect in {f.effect for f in found}:
+            continue
+        if _cannot_name(t, found, by_effect, settings):
+            held = {**t.test["held_out"], "reason": HELD_OUT_OUTRANKED}
+            out[i] = dataclasses.replace(t, test={**t.test, "held_out": held})
+            skipped.append(i)
+            continue
+        compute(i)
+    # A skipped finding was judged against the significant findings of its turn; if those
+    # that followed made a contest possible (a special case significant beside its general
+    # cause), the cause named may have a smaller gain, and the skipped ones are computed.
+    found = [f for f in adjust(out, settings) if f.significant]
+    if skipped and _contest_possible({f.cause for f in found}):
+        for i in skipped:
+            compute(i)
     return out
 
 

@@ -58,7 +58,8 @@ def _householder_r(A: FloatArray) -> FloatArray:
 
     Called directly: ``scipy.linalg.qr(mode="r")`` adds a workspace query, a copy and the
     extraction of the full ``(n, c)`` factor, 1.5-2x the cost of the factorisation itself on
-    the regressions of an ARX (measured in benchmarks/README.md, "Identification").
+    the regressions of an ARX (benchmarks/bench_lstsq.py; benchmarks/README.md, "The tall QR
+    under every least-squares fit").
     """
     # lazy: heavy (scipy)
     from scipy.linalg import get_lapack_funcs

@@ -225,14 +225,14 @@ def render_diagnosis(summary: dict[str, Any]) -> str:
                 f", refined by its simulation error (training fit {check['reference_fit']:.1f} "
                 f"-> {check['refined_fit']:.1f} %), each effect's extension refined the same way"
             )
+        if check["fallback"] and check.get("pem", {}).get("fallback"):
+            what += "; then replaced by pem's model (next note)"
         lines.append(
             f"note: the {check['requested_method']} baseline's training free-run error is "
             f"{check['error_ratio']:.1f}x that of a linear n4sid model (output noise biases an "
             f"equation-error fit); {what}."
         )
     pem = check.get("pem") if check else None
-    if pem and pem["fallback"] and check and check["fallback"]:
-        lines[-1] = lines[-1][:-1] + "; then replaced by pem's model (next note)."
     if pem and pem["fallback"]:
         lines.append(
             f"note: the baseline's free run fits its own training data {pem['baseline_fit']:.1f} %;"

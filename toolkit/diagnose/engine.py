@@ -497,14 +497,13 @@ def choose_baseline(train: Dataset, method: str, settings: Settings) -> Baseline
                 identifier, model = RefinedFallback(identifier), refined
         check.pop("_identifier", None)
         check.pop("_model", None)
-        judged = model if check["fallback"] else (selected if selected is not None else model)
-        if settings.fallback and mean_fit(judged, train) < POOR_TRAINING_FIT:
-            deeper = check_against_pem(judged, train)
-            if deeper is not None:
-                check["pem"] = {k: v for k, v in deeper.items() if not k.startswith("_")}
-                if deeper["fallback"]:
-                    method, identifier, model = "pem", deeper["_identifier"], deeper["_model"]
-                    selected = None
+        judged = selected if selected is not None else model
+        deeper = check_against_pem(judged, train) if settings.fallback else None
+        if deeper is not None:
+            check["pem"] = {k: v for k, v in deeper.items() if not k.startswith("_")}
+            if deeper["fallback"]:
+                method, identifier, model = "pem", deeper["_identifier"], deeper["_model"]
+                selected = None
     return Baseline(
         method=method,
         identifier=identifier,
@@ -1001,15 +1000,15 @@ def _rebuilt(
 
 
 def _start_from(
-    build: Any, train: Dataset, valid: Dataset, settings: Settings, linear: Any = None
+    build: Any, train: Dataset, valid: Dataset, settings: Settings, refined: bool = False
 ) -> tuple[Model, Reference, Context]:
     """An extension's structure refitted on ``train`` as the baseline effects are tried on:
-    the model, its validation reference and the effects' context (``linear``: the identifier
-    the diagnosis started from)."""
+    the model, its validation reference and the effects' context (``refined``: the diagnosis
+    started from a baseline refined by its simulation error, a :class:`RefinedFallback`)."""
     with without_training_fit():
         start = build(train)
     identifier: Any = _Structure(build)
-    if isinstance(linear, RefinedFallback):
+    if refined:
         # a baseline refined by its simulation error (the N4SID or pem fallback): the
         # structure handed on is refitted by N4SID, so it is refined again, and so is every
         # extension the effects propose on it, as at the first step
@@ -1071,6 +1070,7 @@ def continue_sequence(
     model, build, fit_now = refine_named(best, build, identifier, train, valid, settings)
     steps = [_step(first, 1, None, model, fit_now)]
     done = {best.cause}
+    refined = isinstance(identifier, RefinedFallback)
     while len(steps) < settings.max_causes:
         if build is None:
             steps[-1] = dataclasses.replace(
@@ -1084,7 +1084,7 @@ def continue_sequence(
             break
         bar.total = (bar.total or 0) + len(names) + 1
         bar.set_description(f"diagnose: step {len(steps) + 1}")
-        start, ref, ctx = _start_from(build, train, valid, settings, identifier)
+        start, ref, ctx = _start_from(build, train, valid, settings, refined)
         bar.update()
         step_trials, step_skipped = run_effects(registry, names, ctx, ref, valid, settings, bar)
         step_trials = complete_held_out(step_trials, registry, ctx, settings)
@@ -1555,6 +1555,16 @@ def check_baseline(baseline: Model, train: Dataset, method: str) -> dict[str, An
 POOR_TRAINING_FIT = 50.0
 
 
+def _training_error(model: Model, train: Dataset) -> tuple[float, float]:
+    """``(error energy, mean fit)`` of ``model``'s free run on ``train``, from one simulation
+    (the loss of :func:`diagnose`, averaged; the fit as :func:`mean_fit` gives it)."""
+    data = aligned(model, train)
+    sim = simulate_all(model, data)
+    f = fit(data.y, sim)
+    mean = float(np.mean(f)) if np.all(np.isfinite(f)) else -math.inf
+    return float(np.mean(_loss(data.y, sim))), mean
+
+
 def check_against_pem(model: Model, train: Dataset) -> dict[str, Any] | None:
     """Compare a baseline that does not explain its own training data with ``pem``'s model.
 
@@ -1569,16 +1579,18 @@ def check_against_pem(model: Model, train: Dataset) -> dict[str, Any] | None:
     baseline's training error energy exceeds ``BIAS_RATIO`` times pem's, the diagnosis uses
     pem's model as its baseline, and the effects build their candidates with N4SID of pem's
     order and structure, each candidate refined before it is scored, as on the N4SID
-    fallback (:class:`RefinedFallback`).  None when pem fails.
+    fallback (:class:`RefinedFallback`).  None when the baseline fits its training data at
+    :data:`POOR_TRAINING_FIT` or better, or when pem fails.
     """
     try:
+        e_base, fit_base = _training_error(model, train)
+        if not fit_base < POOR_TRAINING_FIT:
+            return None
         ident = identifiers().get("pem").create(integrator=False, delay=False)
         with without_training_fit():
             ref = ident.identify(train)
         rep = ref.representation
-        y = aligned(model, train).y
-        e_base = float(np.mean(_loss(y, simulate_all(model, train))))
-        e_ref = float(np.mean(_loss(aligned(ref, train).y, simulate_all(ref, train))))
+        e_ref, fit_ref = _training_error(ref, train)
     except _NUMERICAL_ERRORS:
         return None
     if not isinstance(rep, StateSpace):
@@ -1589,8 +1601,8 @@ def check_against_pem(model: Model, train: Dataset) -> dict[str, Any] | None:
     same = n4sid.create(order=rep.n_states, offset=True, feedthrough=feedthrough)
     return {
         "reference": "pem",
-        "baseline_fit": mean_fit(model, train),
-        "reference_fit": mean_fit(ref, train),
+        "baseline_fit": fit_base,
+        "reference_fit": fit_ref,
         "order": rep.n_states,
         "feedthrough": feedthrough,
         "error_ratio": ratio,
@@ -1759,7 +1771,8 @@ def cross_gains(
         if build is None:
             return None
         try:
-            _, base, sub = _start_from(build, train, valid, settings, ctx.identifier)
+            refined = isinstance(ctx.identifier, RefinedFallback)
+            _, base, sub = _start_from(build, train, valid, settings, refined)
             # a check of a tie, not a finding: whatever goes wrong leaves the tie as it is
             trial = try_effect(registry.get(second), second, sub, base, valid, settings)
         except _NUMERICAL_ERRORS:

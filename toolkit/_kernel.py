@@ -33,6 +33,11 @@ CODES = (
 )  # fmt: skip
 _CODE = {name: i for i, name in enumerate(CODES)}
 PLAY, BOUC_WEN = _CODE["play"], _CODE["bouc_wen"]
+#: Integer exponents up to this are evaluated as repeated products ``((z·z)·z)…``, here and in
+#: the numpy reference (``terms._product_power``) in the same order, so a factor's value is the
+#: same number in both: ``pow`` costs about twenty products per element, and polynomial terms
+#: (a stiffness, a static curve) are much of what diagnose simulates and regresses.
+MAX_PRODUCT_POWER = 8
 
 
 @dataclass(frozen=True)
@@ -90,8 +95,11 @@ def _fn(code: int, z: float, power: float, param: float) -> float:  # pragma: no
     if code == 0:
         if power == 1.0:
             return z
-        if power == 2.0:
-            return z * z
+        if 1.0 < power <= MAX_PRODUCT_POWER and power == int(power):
+            out = z
+            for _ in range(int(power) - 1):
+                out = out * z
+            return out
         return z**power
     if code == 1:
         return np.sin(z)
@@ -164,10 +172,17 @@ def _terms_at(  # pragma: no cover - numba
     for t in range(ptr.shape[0] - 1):
         prod = 1.0
         for f in range(ptr[t], ptr[t + 1]):
-            buf = a if src[f] == 0 else b
-            s = buf[kk - lag[f], col[f]]
-            if diff[f]:
-                s = s - buf[kk - lag[f] - diff[f], col[f]]
+            # index each buffer in its own branch: binding ``buf = a if ... else b`` makes
+            # numba reference-count an array view per factor and sample (2.5x slower)
+            r, c = kk - lag[f], col[f]
+            if src[f] == 0:
+                s = a[r, c]
+                if diff[f]:
+                    s = s - a[r - diff[f], c]
+            else:
+                s = b[r, c]
+                if diff[f]:
+                    s = s - b[r - diff[f], c]
             z = (s - offset[f]) * scale[f]
             if code[f] >= PLAY:
                 prod *= hysteresis_step(code[f], z, param[f], param2[f], st[f])[0]
@@ -405,6 +420,36 @@ def state_loop(A, Bu, x0):  # pragma: no cover - numba
             xn[i] = acc
         x, xn = xn, x
     return X
+
+
+@njit(cache=True, nogil=True)
+def unit_response_loop(A, C, S):  # pragma: no cover - numba
+    """``out`` (N, ny, nx·nc): the output of ``x⁺ = A x + e_i s_c[k]``, ``y = C x``, from rest,
+    in column ``i·nc + c`` — every signal of ``S`` (N, nc) entering every state in turn."""
+    N, nc = S.shape
+    nx, ny = A.shape[0], C.shape[0]
+    M = nx * nc
+    X = np.zeros((nx, M))
+    Xn = np.empty((nx, M))
+    out = np.empty((N, ny, M))
+    for k in range(N):
+        for o in range(ny):
+            for m in range(M):
+                acc = 0.0
+                for j in range(nx):
+                    acc += C[o, j] * X[j, m]
+                out[k, o, m] = acc
+        for i in range(nx):
+            for m in range(M):
+                acc = 0.0
+                for j in range(nx):
+                    acc += A[i, j] * X[j, m]
+                Xn[i, m] = acc
+        for i in range(nx):
+            for c in range(nc):
+                Xn[i, i * nc + c] += S[k, c]
+        X, Xn = Xn, X
+    return out
 
 
 @njit(cache=True, nogil=True)

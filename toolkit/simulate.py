@@ -89,6 +89,23 @@ def rate_limiter(s: FloatArray, rate: float) -> FloatArray:
     return out
 
 
+def unit_responses(A: FloatArray, C: FloatArray, signals: FloatArray) -> FloatArray:
+    """Output responses to each signal entering each state: shape ``(N, ny, nx * n_signals)``.
+
+    Column ``i * n_signals + c`` is the output ``y = C x`` of ``x⁺ = A x + e_i s_c[k]`` from
+    rest: every signal of ``signals`` (N, n_signals) entering every state in turn — the
+    regressors of an output-error least-squares fit with ``A`` and ``C`` fixed (the compiled
+    :func:`tendonkit._kernel.unit_response_loop`).
+    """
+    return np.asarray(
+        _kernel.unit_response_loop(
+            np.ascontiguousarray(A, dtype=float),
+            np.ascontiguousarray(C, dtype=float),
+            np.ascontiguousarray(signals, dtype=float),
+        )
+    )
+
+
 def play_operator(s: FloatArray, width: float, start: float | None = None) -> FloatArray:
     """Backlash (play) operator of half-width ``width``: output follows when pushed past the gap."""
     out = np.empty_like(s, dtype=float)
@@ -680,4 +697,5 @@ __all__ = [
     "ss_response",
     "ss_theta_measured",
     "transform_inputs",
+    "unit_responses",
 ]

@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ._kernel import CODES, hysteresis_record
+from ._kernel import CODES, MAX_PRODUCT_POWER, hysteresis_record
 from .errors import SchemaError
 
 #: The closed set of functions a factor may apply (``z`` is the scaled, shifted signal).
@@ -554,14 +554,45 @@ def _expand(a: FloatArray, like: FloatArray) -> FloatArray:
     return a.reshape(a.shape + (1,) * (like.ndim - a.ndim))
 
 
+def _product_power(z: FloatArray, p: int) -> FloatArray:
+    """``z ** p`` as ``((z·z)·z)…`` (``p`` >= 1), a new array."""
+    out = z.copy()
+    for _ in range(p - 1):
+        out = out * z
+    return out
+
+
+def _pow(z: FloatArray, power: FloatArray, deriv: bool) -> FloatArray:
+    """``z ** power`` (or its derivative ``power · z ** (power - 1)``): one exponent for all of
+    ``z`` (``power`` 0-d) or one per row of ``z``; integer exponents up to
+    :data:`MAX_PRODUCT_POWER` by repeated products."""
+    z = np.asarray(z, dtype=float)
+    power = np.asarray(power, dtype=float)
+    if power.ndim == 0:
+        p = float(power)
+        e = p - 1 if deriv else p
+        if e == 0:
+            v = np.ones_like(z)
+        elif e == int(e) and 1 <= e <= MAX_PRODUCT_POWER:
+            v = _product_power(z, int(e))
+        else:
+            v = z**e
+        return p * v if deriv else v
+    out = np.empty_like(z)
+    for p in np.unique(power):
+        rows = power == p
+        out[rows] = _pow(z[rows], p, deriv)
+    return out
+
+
 def _apply(
     code: int, z: FloatArray, power: FloatArray, param: FloatArray, deriv: bool
 ) -> FloatArray:
     fn = list(FUNCTIONS)[code]
+    if fn == "pow":
+        return _pow(z, power, deriv)
     power = _expand(power, z)
     param = _expand(param, z)
-    if fn == "pow":
-        return power * z ** (power - 1) if deriv else z**power
     if fn == "sin":
         return np.cos(z) if deriv else np.sin(z)
     if fn == "cos":
@@ -610,6 +641,11 @@ def scalar_evaluator(ct: CompiledTerms) -> Callable[..., list[float]]:
 
     def value(fn: str, z: float, power: int, param: float) -> float:
         if fn == "pow":
+            if 1 < power <= MAX_PRODUCT_POWER:  # as the kernel and _product_power
+                out = z
+                for _ in range(int(power) - 1):
+                    out = out * z
+                return out
             return z**power
         if fn == "sin":
             return math.sin(z)

@@ -81,3 +81,27 @@ def test_an_unknown_engine_is_refused():
 
     with pytest.raises(DataError, match="engine must be"):
         simulate(model, np.zeros((5, len(model.inputs))), engine="fortran")
+
+
+@pytest.mark.parametrize(("nx", "ny", "nc"), [(1, 1, 1), (4, 2, 3), (7, 3, 5)])
+def test_unit_responses_are_the_impulse_responses_convolved_with_each_signal(nx, ny, nc):
+    """The output-error regressors (``unit_responses``: every signal entering every state)
+    equal the convolution of the impulse response ``C A^m e_i`` with the signal, delayed one
+    sample — computed here from explicit matrix powers."""
+    from tendonkit.simulate import unit_responses
+
+    rng = np.random.default_rng(nx * 100 + nc)
+    A = rng.standard_normal((nx, nx))
+    A *= 0.9 / max(abs(np.linalg.eigvals(A)))
+    C = rng.standard_normal((ny, nx))
+    N = 60
+    S = rng.standard_normal((N, nc))
+    H = np.stack([C @ np.linalg.matrix_power(A, m) for m in range(N)])  # (N, ny, nx)
+    want = np.zeros((N, ny, nx * nc))
+    for i in range(nx):
+        for c in range(nc):
+            for o in range(ny):
+                want[1:, o, i * nc + c] = np.convolve(H[:, o, i], S[:, c])[: N - 1]
+    got = unit_responses(A, C, S)
+    assert got.shape == (N, ny, nx * nc)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12 * np.abs(want).max())

@@ -25,7 +25,7 @@ from ..dataset import Dataset, Experiment
 from ..errors import SchemaError
 from ..regression import scaled_lstsq, term_columns_of
 from ..schema import ARX, Block, Model, SparseMap, StateSpace
-from ..simulate import aligned, inner_outputs, simulate, transform_inputs
+from ..simulate import aligned, inner_outputs, simulate, transform_inputs, unit_responses
 from ..terms import Term
 
 FloatArray = NDArray[np.float64]
@@ -224,23 +224,6 @@ def _extend_sparse(model: Model, rep: SparseMap, data: Dataset, terms: tuple[Ter
 # -- state space ----------------------------------------------------------------------------------
 
 
-def _unit_responses(A: FloatArray, C: FloatArray, signals: FloatArray) -> FloatArray:
-    """Output responses to each signal entering each state: shape (n, ny, nx * n_signals).
-
-    Column ``i * n_signals + c`` is the output when signal ``c`` drives state ``i`` from rest.
-    """
-    N, nc = signals.shape
-    nx = A.shape[0]
-    X = np.zeros((nx, nx * nc))
-    out = np.empty((N, C.shape[0], nx * nc))
-    idx = np.arange(nx)
-    for k in range(N):
-        out[k] = C @ X
-        X = A @ X
-        X[idx[:, None], (idx[:, None] * nc + np.arange(nc)[None, :])] += signals[k][None, :]
-    return out
-
-
 def _extend_ss(model: Model, rep: StateSpace, data: Dataset, terms: tuple[Term, ...]) -> Model:
     all_terms = (*rep.terms, *(shift_term(t) for t in terms))
     nx, ny, nu = rep.n_states, rep.C.shape[0], len(model.inputs)
@@ -253,7 +236,7 @@ def _extend_ss(model: Model, rep: StateSpace, data: Dataset, terms: tuple[Term, 
         theta = term_columns_of(all_terms, _signals(model, e), e.n_samples)
         du = e.u - u0
         sig = np.hstack([du, theta])
-        resp = _unit_responses(rep.A, rep.C, sig)  # (N, ny, nx*nc)
+        resp = unit_responses(rep.A, rep.C, sig)  # (N, ny, nx*nc)
         N = e.n_samples
         parts = [resp.reshape(N * ny, -1)]
         if estimate_d:

@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 from scipy.signal import butter, lfilter
 
+from tendonkit.cli.diagnose import render_diagnosis
 from tendonkit.dataset import Dataset, Experiment
 from tendonkit.diagnose import diagnose
 
@@ -115,3 +116,26 @@ def test_a_servo_never_tuned_on(effect, seed):
     assert d.cause == effect, top
     if effect != "none":
         assert d.best is not None and d.best.gain > 0
+
+
+def test_a_static_curve_is_one_cause_however_it_is_shaped():
+    """The torque curve ``u + c·u|u|`` is one memoryless curve on the input.  The polynomial
+    that names it does not bend exactly like ``u|u|``, and a dead zone or a clip on the same
+    input corrects the shape (+5 to +7 points on every seed before this rule): the sequence does
+    not test them as a second cause, says so, and ends after one step."""
+    p = draw("static_nonlinearity", 701)
+    d = diagnose(servo("static_nonlinearity", p, 701), servo("static_nonlinearity", p, 751))
+    assert d.causes == ("static_nonlinearity",)
+    assert [s.cause for s in d.steps] == ["static_nonlinearity", "none"]
+    reshaping = {
+        s["effect"]: s["reason"] for s in d.steps[1].skipped if s["reason"].startswith("reshapes")
+    }
+    assert set(reshaping) == {"dead_zone", "saturation"}
+    assert "static_nonlinearity named at step 1" in reshaping["dead_zone"]
+    # a different cause is still tried at the second step
+    assert {f.effect for f in d.steps[1].findings} >= {"coulomb_friction", "actuator_lag"}
+    text = render_diagnosis(d.to_dict())
+    assert (
+        "not tested: dead_zone, saturation (reshapes the static_nonlinearity named at step 1"
+        in (text)
+    )

@@ -176,8 +176,20 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     return 0
 
 
+def _reshaping_note(st: dict[str, Any]) -> str:
+    """The effects a later step did not test because they reshape a curve already named."""
+    names = [s["effect"] for s in st.get("skipped", []) if s["reason"].startswith("reshapes")]
+    if not names:
+        return ""
+    reason = next(s["reason"] for s in st["skipped"] if s["reason"].startswith("reshapes"))
+    return (
+        f"not tested: {', '.join(names)} ({reason.split(' (')[0]}: one curve, not a second cause)"
+    )
+
+
 def _render_step(st: dict[str, Any]) -> list[str]:
     """The lines of one step of the sequence of causes."""
+    note = _reshaping_note(st)
     if st["cause"] == "none":
         top = st["findings"][0] if st["findings"] else None
         best = (
@@ -185,16 +197,19 @@ def _render_step(st: dict[str, Any]) -> list[str]:
             if top and top.get("gain") is not None
             else "none"
         )
-        return [
+        lines = [
             f"  {st['step']}. nothing more significant (best of {len(st['findings'])} "
             f"effects tried: {best})"
         ]
+        return lines + ([f"     {note}"] if note else [])
     lines = [
         f"  {st['step']}. {st['cause']} ({st['effect']}): fit {st['fit_before']:.2f} -> "
         f"{st['fit']:.2f} % (gain {st['gain']:+.2f} points, p_adj={st['p_adjusted']:.3g})"
     ]
     if st.get("ambiguous"):
         lines.append(f"     tie: {st['ambiguous']['statement']}")
+    if note:
+        lines.append(f"     {note}")
     if st.get("stop"):
         lines.append(f"     stopped: {st['stop']}")
     return lines

@@ -97,6 +97,15 @@ def write_report(
                 for st in d["sequence"]
             ],
         )
+        for st in d["sequence"][1:]:
+            reshaping = [s for s in st.get("skipped", []) if s["reason"].startswith("reshapes")]
+            if reshaping:
+                rep.text(
+                    f"Not tested at step {st['step']}: "
+                    + "; ".join(f"{s['effect']} ({s['reason']})" for s in reshaping)
+                    + ".",
+                    note=True,
+                )
         rep.text(
             f"Final model: fit {d['baseline']['fit']:.2f} % -> {d['extended']['fit']:.2f} % "
             f"(total gain {d['extended']['total_gain']:+.2f} points); causes: "

@@ -177,13 +177,13 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 
 
 def _reshaping_note(st: dict[str, Any]) -> str:
-    """The effects a later step did not test because they reshape a curve already named."""
-    names = [s["effect"] for s in st.get("skipped", []) if s["reason"].startswith("reshapes")]
-    if not names:
-        return ""
-    reason = next(s["reason"] for s in st["skipped"] if s["reason"].startswith("reshapes"))
-    return (
-        f"not tested: {', '.join(names)} ({reason.split(' (')[0]}: one curve, not a second cause)"
+    """The effects a later step did not test because they reshape what a step named."""
+    groups: dict[str, list[str]] = {}
+    for s in st.get("skipped", []):
+        if s["reason"].startswith("reshapes"):
+            groups.setdefault(s["reason"], []).append(s["effect"])
+    return "; ".join(
+        f"not tested: {', '.join(names)} ({reason})" for reason, names in groups.items()
     )
 
 

@@ -1110,44 +1110,65 @@ def continue_sequence(
     return tuple(steps)
 
 
-def curve_paths(cause: str, params: dict[str, Any]) -> frozenset[str]:
-    """Where a memoryless curve of ``cause`` acts (``"inputs"``, ``"outputs"``), for the
-    causes :data:`SPECIAL_CASES` relates; empty for any other cause or an unknown structure."""
+#: Causes whose extensions, on one path, only reshape what the other named: a general
+#: memoryless curve and its special cases (:data:`SPECIAL_CASES`), and a hysteretic force of the
+#: outputs and Coulomb friction on them — the play's elastic-plastic force ``k·(y - play(y))``
+#: with its elastic range shrunk to zero at ``k·w = F_c`` is ``F_c·sign(ẏ)``.
+RESHAPING: dict[str, tuple[str, ...]] = {
+    **SPECIAL_CASES,
+    "hysteresis": ("coulomb_friction",),
+}
+
+
+def reshaping_paths(cause: str, params: dict[str, Any]) -> frozenset[str]:
+    """Where an extension of ``cause`` acts, for the causes :data:`RESHAPING` relates: a curve
+    on the ``"inputs"`` or the ``"outputs"``, or a ``"force on the outputs"`` (hysteresis, and
+    friction by the sign of the output's velocity or of a speed output; a friction played in
+    force space acts on the inputs).  Empty for any other cause or an unknown structure."""
+    structure = str(params.get("structure"))
     if cause == "static_nonlinearity":
         return {
             "Hammerstein": frozenset({"inputs"}),
             "Wiener": frozenset({"outputs"}),
             "Wiener-Hammerstein": frozenset({"inputs", "outputs"}),
-        }.get(str(params.get("structure")), frozenset())
+        }.get(structure, frozenset())
     if cause == "dead_zone":
         return frozenset({"inputs"})
     if cause == "saturation":
         return frozenset({"outputs" if params.get("where") == "output" else "inputs"})
+    if cause == "hysteresis":
+        return frozenset({"force on the outputs"})
+    if cause == "coulomb_friction" and structure.startswith("sign of"):
+        return frozenset({"force on the outputs"})
     return frozenset()
 
 
 def _reshapes(cause: str, params: dict[str, Any], named: Step) -> bool:
-    """Whether an extension of ``cause`` only reshapes the curve a step named: one of the two
-    is a special case of the other (:data:`SPECIAL_CASES`) and they act on the same path."""
-    related = cause in SPECIAL_CASES.get(named.cause, ()) or named.cause in SPECIAL_CASES.get(
-        cause, ()
-    )
-    return related and bool(curve_paths(cause, params) & curve_paths(named.cause, named.params))
+    """Whether an extension of ``cause`` only reshapes what a step named: one of the two causes
+    is a special case of the other (:data:`RESHAPING`) and they act on the same path."""
+    related = cause in RESHAPING.get(named.cause, ()) or named.cause in RESHAPING.get(cause, ())
+    paths = reshaping_paths(cause, params) & reshaping_paths(named.cause, named.params)
+    return related and bool(paths)
 
 
 def _without_reshapes(
     trials: list[Trial], steps: Sequence[Step]
 ) -> tuple[list[Trial], list[dict[str, str]]]:
-    """A later step's trials without those that reshape a curve already named (and why).
+    """A later step's trials without those that reshape what a step named (and why).
 
     Two memoryless curves on the same signal path compose into one curve: a dead zone or a clip
     fitted on the inputs after a general input curve was named (or a general input curve after
     an input clip) corrects the shape of the curve the earlier step fitted — a polynomial does
     not bend like ``u + c·u|u|``, nor a hard clip like a soft one — and is not a second cause
     (on a servo with the curve ``u + c·u|u|`` the sequence went on to name a dead zone,
-    +5 to +7 points, on every seed).  Such an extension is not tested at that step: the
-    issue's rule that a system with a single cause ends after one step.  A curve on the other
-    path (a sensor curve after an input clip) is still tried.
+    +5 to +7 points, on every seed).  Likewise Coulomb friction by the sign of the outputs'
+    velocity after a hysteretic force of the outputs (or the reverse): friction is the play's
+    force with no elastic range, and what it adds after a Bouc-Wen operator of exponent 1 is
+    the loop's shape (a Bouc-Wen spring of exponent 2: friction +1.0 to +1.9 points after
+    it).  Such an extension is not tested at that step: the issue's rule that a system with a
+    single cause ends after one step.  An extension on another path (a sensor curve after an
+    input clip, friction played in force space on the inputs) is still tried; so two real
+    causes of one of these pairs on one path are named as one — docs/diagnose.md, step 8.
     """
     kept: list[Trial] = []
     skipped: list[dict[str, str]] = []
@@ -1159,8 +1180,14 @@ def _without_reshapes(
         skipped.append(
             {
                 "effect": t.effect,
-                "reason": f"reshapes the {named.cause} named at step {named.index} (a memoryless "
-                "curve on the same signal path: one curve, not a second cause)",
+                "reason": f"reshapes the {named.cause} named at step {named.index}: "
+                + (
+                    "a memoryless curve on the same signal path, one curve"
+                    if named.cause in SPECIAL_CASES or t.cause in SPECIAL_CASES
+                    else "a force of the same outputs with a memory (friction is a hysteresis "
+                    "with no elastic range)"
+                )
+                + ", not a second cause",
             }
         )
     return kept, skipped

@@ -164,10 +164,18 @@ def _cases() -> list:
 def test_the_hidden_effect_is_named(effect, dt):
     d = diagnose(_data(effect, dt, 1), _data(effect, dt, 2))
     top = ", ".join(f"{f.effect} {f.gain:+.2f} (p_adj {f.p_adjusted:.1e})" for f in d.findings[:3])
-    print(f"{effect} dt {dt}: cause {d.cause} via {d.baseline_method}; {top}")
+    print(f"{effect} dt {dt}: causes {d.causes} via {d.baseline_method}; {top}")
     assert d.cause == effect, top
     if effect != "none":
         assert d.best is not None and d.best.gain > 0
+    if (effect, dt) == ("hysteresis", 0.05):
+        # The effect fits a Bouc-Wen operator of exponent 1 to a spring of exponent 2; friction
+        # by the sign of the velocity reshapes the loop (+1.0 before the rule) and is not
+        # tested as a second cause: the single cause ends after one step (docs/diagnose.md,
+        # step 8).
+        assert d.causes == ("hysteresis",)
+        reasons = {s["effect"]: s["reason"] for s in d.steps[1].skipped}
+        assert reasons["coulomb_friction"].startswith("reshapes the hysteresis named at step 1")
 
 
 # -- a second oscillator, which no effect was designed on ----------------------------------------

@@ -397,11 +397,18 @@ class CompiledTerms:
                 self._param[i, j] = f.param
                 self._param2[i, j] = f.param2
         stateful_codes = [_FN_CODES[name] for name in STATEFUL]
-        self._groups = {
-            code: np.nonzero(self._code == code)
-            for code in np.unique(self._code)
-            if code >= 0 and code not in stateful_codes
-        }
+        # one group per function (and per exponent for powers: evaluating a group of equal
+        # exponents needs no search for them at every step)
+        self._groups: dict[tuple[int, float | None], tuple[NDArray[np.intp], ...]] = {}
+        for code in np.unique(self._code):
+            if code < 0 or code in stateful_codes:
+                continue
+            mask = self._code == code
+            if code == _FN_CODES["pow"]:
+                for p in np.unique(self._power[mask]):
+                    self._groups[int(code), float(p)] = np.nonzero(mask & (self._power == p))
+            else:
+                self._groups[int(code), None] = np.nonzero(mask)
         #: (term, factor) positions of the hysteresis operators, and their function names
         self._memory = [
             (i, j, t.factors[j].fn)
@@ -475,8 +482,9 @@ class CompiledTerms:
             return np.ones((self.n_terms, *batch))
         z = self._z(values)
         out = np.ones_like(z)
-        for code, idx in self._groups.items():
-            out[idx] = _apply(code, z[idx], self._power[idx], self._param[idx], deriv=False)
+        for (code, p), idx in self._groups.items():
+            power = self._power[idx] if p is None else np.asarray(p)
+            out[idx] = _apply(code, z[idx], power, self._param[idx], deriv=False)
         if self._memory:
             self._memory_values(z, out, None, commit)
         return np.prod(out, axis=1)
@@ -497,9 +505,10 @@ class CompiledTerms:
         z = self._z(values)
         val = np.ones_like(z)
         der = np.zeros_like(z)
-        for code, idx in self._groups.items():
-            val[idx] = _apply(code, z[idx], self._power[idx], self._param[idx], deriv=False)
-            der[idx] = _apply(code, z[idx], self._power[idx], self._param[idx], deriv=True)
+        for (code, p), idx in self._groups.items():
+            power = self._power[idx] if p is None else np.asarray(p)
+            val[idx] = _apply(code, z[idx], power, self._param[idx], deriv=False)
+            der[idx] = _apply(code, z[idx], power, self._param[idx], deriv=True)
         if self._memory:  # with respect to the current sample, the operators' past held
             self._memory_values(z, val, der, commit=False)
         for j in range(mf):
@@ -573,7 +582,7 @@ def _pow(z: FloatArray, power: FloatArray, deriv: bool) -> FloatArray:
         e = p - 1 if deriv else p
         if e == 0:
             v = np.ones_like(z)
-        elif e == int(e) and 1 <= e <= MAX_PRODUCT_POWER:
+        elif 1 <= e <= MAX_PRODUCT_POWER and e == int(e):
             v = _product_power(z, int(e))
         else:
             v = z**e
@@ -641,7 +650,7 @@ def scalar_evaluator(ct: CompiledTerms) -> Callable[..., list[float]]:
 
     def value(fn: str, z: float, power: int, param: float) -> float:
         if fn == "pow":
-            if 1 < power <= MAX_PRODUCT_POWER:  # as the kernel and _product_power
+            if 1 < power <= MAX_PRODUCT_POWER and power == int(power):  # as the kernel
                 out = z
                 for _ in range(int(power) - 1):
                     out = out * z

@@ -971,3 +971,44 @@ def test_friction_on_an_output_that_is_a_speed_is_a_sharp_sign_not_a_smooth_curv
     ]  # fmt: skip
     assert speed, "no candidate for an output that is a speed"
     assert all(eps <= 0.05 * y.std() for p in speed for eps in p["epsilon"]), speed
+
+
+def test_a_candidate_that_reshapes_a_named_cause_is_left_out_of_the_choice():
+    """At a later step of the sequence, an effect's candidates that only reshape a cause
+    already named (a clip on the inputs after an input curve; friction by the sign of the
+    velocity after a hysteresis) are not chosen; candidates on another path still are."""
+    from tendonkit.diagnose.findings import reshapes, reshaping_paths
+
+    ham = {"structure": "Hammerstein"}
+    assert reshapes("saturation", {"where": "inputs"}, "static_nonlinearity", ham)
+    assert reshapes("static_nonlinearity", ham, "dead_zone", {})
+    assert not reshapes("saturation", {"where": "output"}, "static_nonlinearity", ham)
+    assert reshapes(
+        "saturation", {"where": "output"}, "static_nonlinearity", {"structure": "Wiener"}
+    )
+    assert reshapes("coulomb_friction", {"structure": "sign of velocity"}, "hysteresis", {})
+    assert not reshapes("coulomb_friction", {"structure": "play in force space"}, "hysteresis", {})
+    assert not reshapes("saturation", {"where": "inputs"}, "dead_zone", {})  # two kinds
+    assert not reshapes("static_nonlinearity", {}, "dead_zone", {})  # unknown structure: kept
+    assert reshaping_paths("backlash", {}) == frozenset()
+
+    from tendonkit import identify
+    from tendonkit.diagnose import Context
+
+    rng = np.random.default_rng(0)
+    u = rng.standard_normal((400, 1))
+    y = lfilter([0.0, 0.5], [1.0, -0.8], u[:, 0])[:, None]
+    data = Dataset.from_arrays(u, y, dt=0.01, inputs=("u",), outputs=("y",))
+    base = identify(data, "arx", na=1, nb=1)
+    ctx = Context(train=data, baseline=base, identifier=None, residuals=None)  # type: ignore[arg-type]
+    ctx.named = (("hysteresis", {"structure": "bouc_wen"}, 1),)
+    cands = [
+        ({"structure": "sign of velocity"}, lambda d: base),
+        ({"structure": "play in force space"}, lambda d: base),
+    ]
+    ctx.trying = "coulomb_friction"
+    params, model, _, tried = ctx.select(cands)
+    assert params == {"structure": "play in force space"} and model is base
+    assert tried[0]["excluded"].startswith("reshapes the hysteresis named at step 1")
+    ctx.trying = "gravity"  # another cause: nothing is left out
+    assert ctx.select(cands)[0] == {"structure": "sign of velocity"}

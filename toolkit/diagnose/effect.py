@@ -25,6 +25,7 @@ from ..identification import without_training_fit
 from ..metrics import fit
 from ..schema import Model
 from ..simulate import aligned, simulate
+from .findings import reshape_reason, reshapes
 from .residuals import ResidualAnalysis
 
 __all__ = [
@@ -124,6 +125,12 @@ class Context:
     #: automatic ARX): an effect that changes what the linear part sees (a curve after the
     #: dynamics) may choose the orders again with itself in place, the same way.
     max_order: int = 0
+    #: The causes a diagnosis's sequence named before this step, as ``(cause, params, step)``:
+    #: :meth:`select` leaves out a candidate of the effect being tried (:attr:`trying`, its
+    #: cause) that only reshapes one of them (:func:`tendonkit.diagnose.findings.reshapes`).
+    named: tuple[tuple[str, dict[str, Any], int], ...] = ()
+    #: The cause of the effect being tried (set by diagnose around ``Effect.extend``).
+    trying: str = ""
     _cache: dict[str, Any] = field(default_factory=dict)
 
     def refit(self, data: Dataset) -> Model:
@@ -171,6 +178,16 @@ class Context:
         entry = self._cache.get("builders", {}).get(id(model))
         return entry[1] if entry is not None and entry[0] is model else None
 
+    def reshaped(self, params: dict[str, Any]) -> str:
+        """Why a candidate of the effect being tried (:attr:`trying`) with ``params`` only
+        reshapes a cause named before (empty: it does not)."""
+        if not self.trying:
+            return ""
+        for cause, named_params, index in self.named:
+            if reshapes(self.trying, params, cause, named_params):
+                return reshape_reason(self.trying, cause, index)
+        return ""
+
     def select(
         self, candidates: Iterable[tuple[dict[str, Any], Callable[[Dataset], Model]]]
     ) -> tuple[dict[str, Any], Model | None, float, list[dict[str, Any]]]:
@@ -182,6 +199,11 @@ class Context:
         best: tuple[dict[str, Any], Model | None, float] = ({}, None, -math.inf)
         tried: list[dict[str, Any]] = []
         for params, build in candidates:
+            reshaped = self.reshaped(params)
+            if reshaped:
+                tried.append({"params": params, "score": None, "excluded": reshaped})
+                self._cache.setdefault("reshaped", {})[self.trying] = reshaped
+                continue
             try:
                 model = build(self.train)
                 score = self.score(model)

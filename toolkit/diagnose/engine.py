@@ -83,6 +83,8 @@ from .findings import (
     Step,
     _ambiguity,
     _mean,
+    reshape_reason,
+    reshapes,
     tie_runner_up,
 )
 from .residuals import ResidualAnalysis, analyse
@@ -585,13 +587,17 @@ def prediction_losses(model: Model, valid: Dataset) -> FloatArray | None:
 def try_effect(
     effect: Effect, name: str, ctx: Context, ref: Reference, valid: Dataset, settings: Settings
 ) -> Trial | str:
-    """Extend the baseline with ``effect`` and test it on ``valid``; a string says why not."""
+    """Extend the baseline with ``effect`` and test it on ``valid``; a string says why not.
+
+    At a later step of the sequence the effect's candidates that only reshape a cause already
+    named are left out of its choice (:attr:`Context.named`); with none left it is not tried.
+    """
     try:
-        ext = effect.extend(ctx)
+        ext = _extend(effect, ctx)
     except (np.linalg.LinAlgError, ValueError, FloatingPointError, OverflowError) as exc:
         return f"{type(exc).__name__}: {exc}"
     if ext is None:
-        return "not applicable to these data"
+        return ctx._cache.get("reshaped", {}).get(effect.cause) or "not applicable to these data"
     ext = _at_fallback_optimum(ext, ctx)
     baseline = ctx.baseline
     sim = simulate_all(ext.model, valid)
@@ -661,6 +667,16 @@ def try_effect(
     )
 
 
+def _extend(effect: Effect, ctx: Context) -> Extension | None:
+    """``effect.extend(ctx)`` with :attr:`Context.trying` set to its cause (which candidates
+    reshape a cause named before depends on it)."""
+    ctx.trying = effect.cause
+    try:
+        return effect.extend(ctx)
+    finally:
+        ctx.trying = ""
+
+
 def _at_fallback_optimum(ext: Extension, ctx: Context) -> Extension:
     """On a refined N4SID fallback the baseline is at its simulation-error optimum, so the
     extension is scored at its own (a few iterations); elsewhere ``ext`` as it is."""
@@ -705,6 +721,7 @@ def _held_out_folds(ctx: Context) -> list[tuple[Context, Dataset, FloatArray]]:
                     residuals=analyse(base, rest),
                     seed=ctx.seed,
                     max_order=ctx.max_order,
+                    named=ctx.named,
                 )
                 folds.append((fold, held, _loss(y, sim)))
         except _FIT_ERRORS:
@@ -839,7 +856,7 @@ def held_out_test(effect: Effect, ctx: Context, settings: Settings) -> dict[str,
     base_losses, ext_losses = [], []
     try:
         for fold, held, base_loss in folds:
-            ext = effect.extend(fold)
+            ext = _extend(effect, fold)
             if ext is None:
                 return {"p_value": 1.0, "reason": "the effect does not apply on a fold"}
             model = _at_fallback_optimum(ext, fold).model
@@ -1056,8 +1073,9 @@ def continue_sequence(
     refined block parameters kept, the linear part re-estimated by least squares, as every
     candidate of the step is), tries every effect of a cause not yet named (one cause can hide
     another: a force lag hides the plant's friction, which gains nothing against the
-    baseline), and tests them exactly as the first step does (Holm at ``alpha`` within the
-    step).  The sequence stops at the first step where nothing is significant, or after
+    baseline) without the candidates that only reshape a cause named (:attr:`Context.named`,
+    :func:`_without_reshapes`), and tests them exactly as the first step does (Holm at
+    ``alpha`` within the step).  The sequence stops at the first step where nothing is significant, or after
     ``max_causes`` causes: a fixed-sequence (gatekeeping) procedure, so the first step whose
     null hypothesis ("nothing more to find") is true is the only one that can add a false
     cause, with probability at most ``alpha`` (docs/diagnose.md, *Several causes*).
@@ -1085,6 +1103,7 @@ def continue_sequence(
         bar.total = (bar.total or 0) + len(names) + 1
         bar.set_description(f"diagnose: step {len(steps) + 1}")
         start, ref, ctx = _start_from(build, train, valid, settings, refined)
+        ctx.named = tuple((s.cause, s.params, s.index) for s in steps if s.cause != "none")
         bar.update()
         step_trials, step_skipped = run_effects(registry, names, ctx, ref, valid, settings, bar)
         step_trials, reshaping = _without_reshapes(step_trials, steps)
@@ -1110,47 +1129,6 @@ def continue_sequence(
     return tuple(steps)
 
 
-#: Causes whose extensions, on one path, only reshape what the other named: a general
-#: memoryless curve and its special cases (:data:`SPECIAL_CASES`), and a hysteretic force of the
-#: outputs and Coulomb friction on them — the play's elastic-plastic force ``k·(y - play(y))``
-#: with its elastic range shrunk to zero at ``k·w = F_c`` is ``F_c·sign(ẏ)``.
-RESHAPING: dict[str, tuple[str, ...]] = {
-    **SPECIAL_CASES,
-    "hysteresis": ("coulomb_friction",),
-}
-
-
-def reshaping_paths(cause: str, params: dict[str, Any]) -> frozenset[str]:
-    """Where an extension of ``cause`` acts, for the causes :data:`RESHAPING` relates: a curve
-    on the ``"inputs"`` or the ``"outputs"``, or a ``"force on the outputs"`` (hysteresis, and
-    friction by the sign of the output's velocity or of a speed output; a friction played in
-    force space acts on the inputs).  Empty for any other cause or an unknown structure."""
-    structure = str(params.get("structure"))
-    if cause == "static_nonlinearity":
-        return {
-            "Hammerstein": frozenset({"inputs"}),
-            "Wiener": frozenset({"outputs"}),
-            "Wiener-Hammerstein": frozenset({"inputs", "outputs"}),
-        }.get(structure, frozenset())
-    if cause == "dead_zone":
-        return frozenset({"inputs"})
-    if cause == "saturation":
-        return frozenset({"outputs" if params.get("where") == "output" else "inputs"})
-    if cause == "hysteresis":
-        return frozenset({"force on the outputs"})
-    if cause == "coulomb_friction" and structure.startswith("sign of"):
-        return frozenset({"force on the outputs"})
-    return frozenset()
-
-
-def _reshapes(cause: str, params: dict[str, Any], named: Step) -> bool:
-    """Whether an extension of ``cause`` only reshapes what a step named: one of the two causes
-    is a special case of the other (:data:`RESHAPING`) and they act on the same path."""
-    related = cause in RESHAPING.get(named.cause, ()) or named.cause in RESHAPING.get(cause, ())
-    paths = reshaping_paths(cause, params) & reshaping_paths(named.cause, named.params)
-    return related and bool(paths)
-
-
 def _without_reshapes(
     trials: list[Trial], steps: Sequence[Step]
 ) -> tuple[list[Trial], list[dict[str, str]]]:
@@ -1166,29 +1144,21 @@ def _without_reshapes(
     force with no elastic range, and what it adds after a Bouc-Wen operator of exponent 1 is
     the loop's shape (a Bouc-Wen spring of exponent 2: friction +1.0 to +1.9 points after
     it).  Such an extension is not tested at that step: the issue's rule that a system with a
-    single cause ends after one step.  An extension on another path (a sensor curve after an
-    input clip, friction played in force space on the inputs) is still tried; so two real
-    causes of one of these pairs on one path are named as one — docs/diagnose.md, step 8.
+    single cause ends after one step.  The effects leave these candidates out of their choice
+    already (:meth:`Context.select` with :attr:`Context.named`) and keep those on another path
+    (a sensor curve after an input clip, friction played in force space on the inputs); this
+    is the check on the trial an effect chose without :meth:`Context.select`.  Two real causes
+    of one of these pairs on one path are named as one — docs/diagnose.md, step 8.
     """
     kept: list[Trial] = []
     skipped: list[dict[str, str]] = []
     for t in trials:
-        named = next((s for s in steps if _reshapes(t.cause, t.params, s)), None)
+        named = next((s for s in steps if reshapes(t.cause, t.params, s.cause, s.params)), None)
         if named is None:
             kept.append(t)
             continue
         skipped.append(
-            {
-                "effect": t.effect,
-                "reason": f"reshapes the {named.cause} named at step {named.index}: "
-                + (
-                    "a memoryless curve on the same signal path, one curve"
-                    if named.cause in SPECIAL_CASES or t.cause in SPECIAL_CASES
-                    else "a force of the same outputs with a memory (friction is a hysteresis "
-                    "with no elastic range)"
-                )
-                + ", not a second cause",
-            }
+            {"effect": t.effect, "reason": reshape_reason(t.cause, named.cause, named.index)}
         )
     return kept, skipped
 
@@ -1858,6 +1828,7 @@ def cross_gains(
         try:
             refined = isinstance(ctx.identifier, RefinedFallback)
             _, base, sub = _start_from(build, train, valid, settings, refined)
+            sub.named = ctx.named
             # a check of a tie, not a finding: whatever goes wrong leaves the tie as it is
             trial = try_effect(registry.get(second), second, sub, base, valid, settings)
         except _NUMERICAL_ERRORS:

@@ -84,6 +84,60 @@ SPECIAL_CASES: dict[str, tuple[str, ...]] = {
     "static_nonlinearity": ("saturation", "dead_zone"),
 }
 
+#: Causes whose extensions, on one path, only reshape what the other named: a general
+#: memoryless curve and its special cases (:data:`SPECIAL_CASES`), and a hysteretic force of the
+#: outputs and Coulomb friction on them — the play's elastic-plastic force ``k·(y - play(y))``
+#: with its elastic range shrunk to zero at ``k·w = F_c`` is ``F_c·sign(ẏ)``.  A later step of
+#: the sequence does not try such a reshape of a cause already named (docs/diagnose.md, step 8).
+RESHAPING: dict[str, tuple[str, ...]] = {
+    **SPECIAL_CASES,
+    "hysteresis": ("coulomb_friction",),
+}
+
+
+def reshaping_paths(cause: str, params: dict[str, Any]) -> frozenset[str]:
+    """Where an extension of ``cause`` acts, for the causes :data:`RESHAPING` relates: a curve
+    on the ``"inputs"`` or the ``"outputs"``, or a ``"force on the outputs"`` (hysteresis, and
+    friction by the sign of the output's velocity or of a speed output; a friction played in
+    force space acts on the inputs).  Empty for any other cause or an unknown structure."""
+    structure = str(params.get("structure"))
+    if cause == "static_nonlinearity":
+        return {
+            "Hammerstein": frozenset({"inputs"}),
+            "Wiener": frozenset({"outputs"}),
+            "Wiener-Hammerstein": frozenset({"inputs", "outputs"}),
+        }.get(structure, frozenset())
+    if cause == "dead_zone":
+        return frozenset({"inputs"})
+    if cause == "saturation":
+        return frozenset({"outputs" if params.get("where") == "output" else "inputs"})
+    if cause == "hysteresis":
+        return frozenset({"force on the outputs"})
+    if cause == "coulomb_friction" and structure.startswith("sign of"):
+        return frozenset({"force on the outputs"})
+    return frozenset()
+
+
+def reshapes(cause: str, params: dict[str, Any], named: str, named_params: dict[str, Any]) -> bool:
+    """Whether an extension of ``cause`` with ``params`` only reshapes the cause ``named`` (with
+    ``named_params``): one is a special case of the other (:data:`RESHAPING`) and they act on
+    the same path (:func:`reshaping_paths`)."""
+    related = cause in RESHAPING.get(named, ()) or named in RESHAPING.get(cause, ())
+    paths = reshaping_paths(cause, params) & reshaping_paths(named, named_params)
+    return related and bool(paths)
+
+
+def reshape_reason(cause: str, named: str, index: int) -> str:
+    """Why an extension of ``cause`` is not tried after ``named`` was named at step ``index``."""
+    why = (
+        "a memoryless curve on the same signal path, one curve"
+        if cause in SPECIAL_CASES or named in SPECIAL_CASES
+        else "a force of the same outputs with a memory (friction is a hysteresis with no "
+        "elastic range)"
+    )
+    return f"reshapes the {named} named at step {index}: {why}, not a second cause"
+
+
 DEFAULT_EXPERIMENT = (
     "repeat the experiment at two excitation amplitudes and two speeds: the candidate causes "
     "scale differently with amplitude (static nonlinearities), speed (dynamics) and direction "

@@ -262,9 +262,24 @@ def test_a_dead_zone_below_every_tension_names_no_cause():
 #: friction effect gains nothing, before or after the lag is modelled (-1.4, -2.1;
 #: docs/diagnose.md, "Two effects at once").
 PAIRS = [(("G", "D"), 1), (("G", "D"), 2), (("A", "G"), 1), (("A", "G"), 2)]
+#: The issue's own example, not met yet: a strict expected failure, so that the suite fails the
+#: day it passes (the lag +19.7 with p_adj 0.014 on seed 1; the friction not seen behind it).
+UNMET_PAIRS = {
+    (("A", "F"), 1): "friction + force-controller lag: the lag extension leaves ~20 points of "
+    "the rate-limited, joint-coupled force loop unexplained and the friction (~7 points with "
+    "the lag known exactly) is not seen behind it (docs/diagnose.md, 'Two effects at once')",
+}
 
 
-@pytest.mark.parametrize(("pair", "seed"), PAIRS, ids=[f"{a}+{b}-{s}" for (a, b), s in PAIRS])
+def _pair_cases() -> list:
+    cases = [pytest.param(p, s, id=f"{p[0]}+{p[1]}-{s}") for p, s in PAIRS]
+    for (p, s), reason in UNMET_PAIRS.items():
+        mark = pytest.mark.xfail(strict=True, reason=reason)
+        cases.append(pytest.param(p, s, marks=mark, id=f"{p[0]}+{p[1]}-{s}"))
+    return cases
+
+
+@pytest.mark.parametrize(("pair", "seed"), _pair_cases())
 def test_two_effects_are_both_named(pair, seed):
     params = {**draw(pair[0], seed), **draw(pair[1], seed)}
     commanded = any(e in ("D", "F") for e in pair)

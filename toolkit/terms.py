@@ -236,11 +236,12 @@ class Term:
 
     def evaluate(self, get: Getter, shape: tuple[int, ...] = ()) -> FloatArray:
         """Evaluate the product; ``shape`` is used for the constant term."""
+        if not self.factors:  # the constant term
+            return np.ones(shape)
         out: FloatArray | float = 1.0
         for f in self.factors:
             out = out * f.evaluate(get)
-        if isinstance(out, float):
-            return np.ones(shape)
+        # not ``isinstance(out, float)``: a scalar product is a numpy float, which is a float
         return np.asarray(out)
 
     def gradient(self, get: Getter) -> dict[str, FloatArray]:

@@ -174,3 +174,12 @@ def test_integer_powers_by_products_equal_pow_to_the_last_bits(p):
     fast = simulate(model, u, initial="zero", engine="compiled")
     ref = simulate(model, u, initial="zero", engine="reference")
     np.testing.assert_array_equal(fast, ref)
+
+
+def test_a_term_evaluated_on_one_sample_is_its_value_not_one():
+    """A getter that returns scalars gives the product (a numpy scalar is a float, which once
+    made every such product read as the constant term, 1)."""
+    t = Term((Factor("y", power=3), Factor("u")))
+    assert float(t.evaluate(lambda name, lag: {"y": 2.0, "u": -0.5}[name])) == -4.0
+    assert float(Term(()).evaluate(lambda name, lag: 7.0)) == 1.0
+    np.testing.assert_array_equal(Term(()).evaluate(lambda n, k: 0.0, (3,)), np.ones(3))

@@ -148,7 +148,7 @@ class Factor:
         return _apply(
             _FN_CODES[self.fn],
             np.asarray(z, dtype=float),
-            np.asarray(float(self.power)),
+            float(self.power),
             np.asarray(self.param),
             deriv=False,
         )
@@ -163,7 +163,7 @@ class Factor:
         return _apply(
             _FN_CODES[self.fn],
             np.asarray(z, dtype=float),
-            np.asarray(float(self.power)),
+            float(self.power),
             np.asarray(self.param),
             deriv=True,
         )
@@ -484,8 +484,7 @@ class CompiledTerms:
         z = self._z(values)
         out = np.ones_like(z)
         for (code, p), idx in self._groups.items():
-            power = self._power[idx] if p is None else np.asarray(p)
-            out[idx] = _apply(code, z[idx], power, self._param[idx], deriv=False)
+            out[idx] = _apply(code, z[idx], p, self._param[idx], deriv=False)
         if self._memory:
             self._memory_values(z, out, None, commit)
         return np.prod(out, axis=1)
@@ -507,9 +506,8 @@ class CompiledTerms:
         val = np.ones_like(z)
         der = np.zeros_like(z)
         for (code, p), idx in self._groups.items():
-            power = self._power[idx] if p is None else np.asarray(p)
-            val[idx] = _apply(code, z[idx], power, self._param[idx], deriv=False)
-            der[idx] = _apply(code, z[idx], power, self._param[idx], deriv=True)
+            val[idx] = _apply(code, z[idx], p, self._param[idx], deriv=False)
+            der[idx] = _apply(code, z[idx], p, self._param[idx], deriv=True)
         if self._memory:  # with respect to the current sample, the operators' past held
             self._memory_values(z, val, der, commit=False)
         for j in range(mf):
@@ -564,44 +562,37 @@ def _expand(a: FloatArray, like: FloatArray) -> FloatArray:
     return a.reshape(a.shape + (1,) * (like.ndim - a.ndim))
 
 
-def _product_power(z: FloatArray, p: int) -> FloatArray:
-    """``z ** p`` as ``((z·z)·z)…`` (``p`` >= 1), a new array."""
-    out = z.copy()
+def _product_power(z: Any, p: int) -> Any:
+    """``z ** p`` as ``((z·z)·z)…`` for ``p`` >= 1 (a new array for an array ``z``), in the
+    order of the compiled kernel's ``_fn``, so both give the same number."""
+    out = +z
     for _ in range(p - 1):
         out = out * z
     return out
 
 
-def _pow(z: FloatArray, power: FloatArray, deriv: bool) -> FloatArray:
-    """``z ** power`` (or its derivative ``power · z ** (power - 1)``): one exponent for all of
-    ``z`` (``power`` 0-d) or one per row of ``z``; integer exponents up to
+def _pow(z: FloatArray, p: float, deriv: bool) -> FloatArray:
+    """``z ** p`` or its derivative ``p · z ** (p - 1)``; integer exponents up to
     :data:`MAX_PRODUCT_POWER` by repeated products."""
-    z = np.asarray(z, dtype=float)
-    power = np.asarray(power, dtype=float)
-    if power.ndim == 0:
-        p = float(power)
-        e = p - 1 if deriv else p
-        if e == 0:
-            v = np.ones_like(z)
-        elif 1 <= e <= MAX_PRODUCT_POWER and e == int(e):
-            v = _product_power(z, int(e))
-        else:
-            v = z**e
-        return p * v if deriv else v
-    out = np.empty_like(z)
-    for p in np.unique(power):
-        rows = power == p
-        out[rows] = _pow(z[rows], p, deriv)
-    return out
+    e = p - 1 if deriv else p
+    if e == 0:
+        v = np.ones_like(z)
+    elif 1 <= e <= MAX_PRODUCT_POWER and e == int(e):
+        v = _product_power(z, int(e))
+    else:
+        v = z**e
+    return p * v if deriv else v
 
 
 def _apply(
-    code: int, z: FloatArray, power: FloatArray, param: FloatArray, deriv: bool
+    code: int, z: FloatArray, power: float | None, param: FloatArray, deriv: bool
 ) -> FloatArray:
+    """Function ``code`` (its derivative when ``deriv``) of ``z``; ``power`` is the exponent of
+    ``pow`` (one for all of ``z``), unused by the other functions."""
     fn = list(FUNCTIONS)[code]
     if fn == "pow":
-        return _pow(z, power, deriv)
-    power = _expand(power, z)
+        assert power is not None
+        return _pow(np.asarray(z, dtype=float), power, deriv)
     param = _expand(param, z)
     if fn == "sin":
         return np.cos(z) if deriv else np.sin(z)
@@ -652,10 +643,7 @@ def scalar_evaluator(ct: CompiledTerms) -> Callable[..., list[float]]:
     def value(fn: str, z: float, power: int, param: float) -> float:
         if fn == "pow":
             if 1 < power <= MAX_PRODUCT_POWER and power == int(power):  # as the kernel
-                out = z
-                for _ in range(int(power) - 1):
-                    out = out * z
-                return out
+                return float(_product_power(z, int(power)))
             return z**power
         if fn == "sin":
             return math.sin(z)

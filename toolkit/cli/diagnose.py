@@ -9,7 +9,7 @@ from typing import Any
 
 from ..dataset import Dataset
 from ..diagnose import diagnose
-from ..diagnose.findings import evidence_notes, experiment_lead
+from ..diagnose.findings import evidence_notes, experiment_lead, reshaping_notes
 from ..diagnose.report import write_report
 from ..errors import DataError
 from ..manager import effects
@@ -176,20 +176,9 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     return 0
 
 
-def _reshaping_note(st: dict[str, Any]) -> str:
-    """The effects a later step did not test because they reshape what a step named."""
-    groups: dict[str, list[str]] = {}
-    for s in st.get("skipped", []):
-        if s["reason"].startswith("reshapes"):
-            groups.setdefault(s["reason"], []).append(s["effect"])
-    return "; ".join(
-        f"not tested: {', '.join(names)} ({reason})" for reason, names in groups.items()
-    )
-
-
 def _render_step(st: dict[str, Any]) -> list[str]:
     """The lines of one step of the sequence of causes."""
-    note = _reshaping_note(st)
+    notes = [f"     {n}" for n in reshaping_notes(st)]
     if st["cause"] == "none":
         top = st["findings"][0] if st["findings"] else None
         best = (
@@ -201,15 +190,14 @@ def _render_step(st: dict[str, Any]) -> list[str]:
             f"  {st['step']}. nothing more significant (best of {len(st['findings'])} "
             f"effects tried: {best})"
         ]
-        return lines + ([f"     {note}"] if note else [])
+        return lines + notes
     lines = [
         f"  {st['step']}. {st['cause']} ({st['effect']}): fit {st['fit_before']:.2f} -> "
         f"{st['fit']:.2f} % (gain {st['gain']:+.2f} points, p_adj={st['p_adjusted']:.3g})"
     ]
     if st.get("ambiguous"):
         lines.append(f"     tie: {st['ambiguous']['statement']}")
-    if note:
-        lines.append(f"     {note}")
+    lines += notes
     if st.get("stop"):
         lines.append(f"     stopped: {st['stop']}")
     return lines

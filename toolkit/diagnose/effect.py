@@ -178,14 +178,12 @@ class Context:
         entry = self._cache.get("builders", {}).get(id(model))
         return entry[1] if entry is not None and entry[0] is model else None
 
-    def reshaped(self, params: dict[str, Any]) -> str:
-        """Why a candidate of the effect being tried (:attr:`trying`) with ``params`` only
-        reshapes a cause named before (empty: it does not)."""
-        if not self.trying:
-            return ""
-        for cause, named_params, index in self.named:
-            if reshapes(self.trying, params, cause, named_params):
-                return reshape_reason(self.trying, cause, index)
+    def reshaped(self, cause: str, params: dict[str, Any]) -> str:
+        """Why an extension of ``cause`` with ``params`` only reshapes a cause named before
+        (:attr:`named`; empty: it does not)."""
+        for named, named_params, index in self.named:
+            if reshapes(cause, params, named, named_params):
+                return reshape_reason(cause, named, index)
         return ""
 
     def select(
@@ -199,7 +197,7 @@ class Context:
         best: tuple[dict[str, Any], Model | None, float] = ({}, None, -math.inf)
         tried: list[dict[str, Any]] = []
         for params, build in candidates:
-            reshaped = self.reshaped(params)
+            reshaped = self.reshaped(self.trying, params) if self.trying else ""
             if reshaped:
                 tried.append({"params": params, "score": None, "excluded": reshaped})
                 self._cache.setdefault("reshaped", {})[self.trying] = reshaped

@@ -83,8 +83,6 @@ from .findings import (
     Step,
     _ambiguity,
     _mean,
-    reshape_reason,
-    reshapes,
     tie_runner_up,
 )
 from .residuals import ResidualAnalysis, analyse
@@ -598,6 +596,10 @@ def try_effect(
         return f"{type(exc).__name__}: {exc}"
     if ext is None:
         return ctx._cache.get("reshaped", {}).get(effect.cause) or "not applicable to these data"
+    # an effect that chose its extension without Context.select is checked on its choice
+    reshaped = ctx.reshaped(effect.cause, ext.params)
+    if reshaped:
+        return reshaped
     ext = _at_fallback_optimum(ext, ctx)
     baseline = ctx.baseline
     sim = simulate_all(ext.model, valid)
@@ -1017,11 +1019,17 @@ def _rebuilt(
 
 
 def _start_from(
-    build: Any, train: Dataset, valid: Dataset, settings: Settings, refined: bool = False
+    build: Any,
+    train: Dataset,
+    valid: Dataset,
+    settings: Settings,
+    refined: bool = False,
+    named: tuple[tuple[str, dict[str, Any], int], ...] = (),
 ) -> tuple[Model, Reference, Context]:
     """An extension's structure refitted on ``train`` as the baseline effects are tried on:
     the model, its validation reference and the effects' context (``refined``: the diagnosis
-    started from a baseline refined by its simulation error, a :class:`RefinedFallback`)."""
+    started from a baseline refined by its simulation error, a :class:`RefinedFallback`;
+    ``named``: the causes named before, :attr:`Context.named`)."""
     with without_training_fit():
         start = build(train)
     identifier: Any = _Structure(build)
@@ -1036,6 +1044,7 @@ def _start_from(
         identifier=identifier,
         residuals=analyse(start, train),
         seed=settings.seed,
+        named=named,
     )
     return start, score_baseline(start, valid), ctx
 
@@ -1073,8 +1082,8 @@ def continue_sequence(
     refined block parameters kept, the linear part re-estimated by least squares, as every
     candidate of the step is), tries every effect of a cause not yet named (one cause can hide
     another: a force lag hides the plant's friction, which gains nothing against the
-    baseline) without the candidates that only reshape a cause named (:attr:`Context.named`,
-    :func:`_without_reshapes`), and tests them exactly as the first step does (Holm at
+    baseline) without the candidates that only reshape a cause named (:attr:`Context.named`;
+    docs/diagnose.md, step 8), and tests them exactly as the first step does (Holm at
     ``alpha`` within the step).  The sequence stops at the first step where nothing is significant, or after
     ``max_causes`` causes: a fixed-sequence (gatekeeping) procedure, so the first step whose
     null hypothesis ("nothing more to find") is true is the only one that can add a false
@@ -1102,12 +1111,10 @@ def continue_sequence(
             break
         bar.total = (bar.total or 0) + len(names) + 1
         bar.set_description(f"diagnose: step {len(steps) + 1}")
-        start, ref, ctx = _start_from(build, train, valid, settings, refined)
-        ctx.named = tuple((s.cause, s.params, s.index) for s in steps if s.cause != "none")
+        before = tuple((s.cause, s.params, s.index) for s in steps if s.cause != "none")
+        start, ref, ctx = _start_from(build, train, valid, settings, refined, before)
         bar.update()
         step_trials, step_skipped = run_effects(registry, names, ctx, ref, valid, settings, bar)
-        step_trials, reshaping = _without_reshapes(step_trials, steps)
-        step_skipped = step_skipped + reshaping
         step_trials = complete_held_out(step_trials, registry, ctx, settings)
         findings = adjust(step_trials, settings)
         base = Baseline(method="previous step", identifier=None, model=start, check=None)
@@ -1127,40 +1134,6 @@ def continue_sequence(
         steps.append(_step(step_diag, len(steps) + 1, None, model, fit_now))
         done.add(chosen.cause)
     return tuple(steps)
-
-
-def _without_reshapes(
-    trials: list[Trial], steps: Sequence[Step]
-) -> tuple[list[Trial], list[dict[str, str]]]:
-    """A later step's trials without those that reshape what a step named (and why).
-
-    Two memoryless curves on the same signal path compose into one curve: a dead zone or a clip
-    fitted on the inputs after a general input curve was named (or a general input curve after
-    an input clip) corrects the shape of the curve the earlier step fitted — a polynomial does
-    not bend like ``u + c·u|u|``, nor a hard clip like a soft one — and is not a second cause
-    (on a servo with the curve ``u + c·u|u|`` the sequence went on to name a dead zone,
-    +5 to +7 points, on every seed).  Likewise Coulomb friction by the sign of the outputs'
-    velocity after a hysteretic force of the outputs (or the reverse): friction is the play's
-    force with no elastic range, and what it adds after a Bouc-Wen operator of exponent 1 is
-    the loop's shape (a Bouc-Wen spring of exponent 2: friction +1.0 to +1.9 points after
-    it).  Such an extension is not tested at that step: the issue's rule that a system with a
-    single cause ends after one step.  The effects leave these candidates out of their choice
-    already (:meth:`Context.select` with :attr:`Context.named`) and keep those on another path
-    (a sensor curve after an input clip, friction played in force space on the inputs); this
-    is the check on the trial an effect chose without :meth:`Context.select`.  Two real causes
-    of one of these pairs on one path are named as one — docs/diagnose.md, step 8.
-    """
-    kept: list[Trial] = []
-    skipped: list[dict[str, str]] = []
-    for t in trials:
-        named = next((s for s in steps if reshapes(t.cause, t.params, s.cause, s.params)), None)
-        if named is None:
-            kept.append(t)
-            continue
-        skipped.append(
-            {"effect": t.effect, "reason": reshape_reason(t.cause, named.cause, named.index)}
-        )
-    return kept, skipped
 
 
 #: Iterations of the simulation-error refinement of a named extension (each costs one
@@ -1827,8 +1800,7 @@ def cross_gains(
             return None
         try:
             refined = isinstance(ctx.identifier, RefinedFallback)
-            _, base, sub = _start_from(build, train, valid, settings, refined)
-            sub.named = ctx.named
+            _, base, sub = _start_from(build, train, valid, settings, refined, ctx.named)
             # a check of a tie, not a finding: whatever goes wrong leaves the tie as it is
             trial = try_effect(registry.get(second), second, sub, base, valid, settings)
         except _NUMERICAL_ERRORS:

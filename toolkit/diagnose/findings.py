@@ -135,7 +135,21 @@ def reshape_reason(cause: str, named: str, index: int) -> str:
         else "a force of the same outputs with a memory (friction is a hysteresis with no "
         "elastic range)"
     )
-    return f"reshapes the {named} named at step {index}: {why}, not a second cause"
+    return f"{RESHAPES} {named} named at step {index}: {why}, not a second cause"
+
+
+#: How the reason of an effect left out as a reshape (:func:`reshape_reason`) begins.
+RESHAPES = "reshapes the"
+
+
+def reshaping_notes(step: dict[str, Any]) -> list[str]:
+    """``not tested: <effects> (<reason>)`` per reason, for the effects a step of the sequence
+    (its JSON form) left out because they reshape a cause named before."""
+    groups: dict[str, list[str]] = {}
+    for s in step.get("skipped", []):
+        if s["reason"].startswith(RESHAPES):
+            groups.setdefault(s["reason"], []).append(s["effect"])
+    return [f"not tested: {', '.join(names)} ({reason})" for reason, names in groups.items()]
 
 
 DEFAULT_EXPERIMENT = (

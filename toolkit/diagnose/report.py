@@ -17,7 +17,7 @@ from ..figures import (
 from ..report import Report
 from . import Diagnosis
 from .engine import simulate_all
-from .findings import evidence_notes, experiment_lead
+from .findings import evidence_notes, experiment_lead, reshaping_notes
 
 
 def explaining_signal(cause: str, data: Dataset, j: int) -> tuple[np.ndarray, str]:
@@ -98,14 +98,8 @@ def write_report(
             ],
         )
         for st in d["sequence"][1:]:
-            reshaping = [s for s in st.get("skipped", []) if s["reason"].startswith("reshapes")]
-            if reshaping:
-                rep.text(
-                    f"Not tested at step {st['step']}: "
-                    + "; ".join(f"{s['effect']} ({s['reason']})" for s in reshaping)
-                    + ".",
-                    note=True,
-                )
+            for note in reshaping_notes(st):
+                rep.text(f"Step {st['step']}, {note}.", note=True)
         rep.text(
             f"Final model: fit {d['baseline']['fit']:.2f} % -> {d['extended']['fit']:.2f} % "
             f"(total gain {d['extended']['total_gain']:+.2f} points); causes: "

@@ -90,6 +90,7 @@ _BLOCK_CODES = {
     "first_order_lag": 4,
     "rate_limit": 5,
     "polynomial": 6,
+    "second_order_section": 7,
 }
 _FN_CODES = {name: i for i, name in enumerate(FUNCTIONS)}
 #: The factor functions the C runtime implements (``fn()`` in tendonkit_runtime.c).
@@ -144,6 +145,8 @@ def _blocks(blocks: Sequence[Block], names: Sequence[str]) -> list[float]:
             params = (float(p["lower"]), float(p["upper"]))
         elif b.kind == "polynomial":
             params = (float(p["c0"]), float(p["c1"]), float(p["c2"]), float(p["c3"]))
+        elif b.kind == "second_order_section":
+            params = (float(p["b1"]), float(p["b2"]), float(p["a1"]), float(p["a2"]))
         else:
             params = (
                 float(p[{"play": "width", "first_order_lag": "pole"}.get(b.kind, "rate")]),

@@ -37,8 +37,10 @@ from tendonkit.identification import without_training_fit
 from tendonkit.plugins._arx_structure import PARSIMONY as ARX_PARSIMONY
 from tendonkit.plugins._arx_structure import as_tuple as _as_tuple
 from tendonkit.plugins._arx_structure import cv_folds, cv_window, held_out_error
+from tendonkit.plugins._bla_split import best_split
 from tendonkit.plugins.arx import ARX as ArxOptions
 from tendonkit.schema import ARX, Block, Model
+from tendonkit.simulate import transform_inputs
 from tendonkit.terms import Factor, Term
 
 
@@ -504,7 +506,62 @@ class StaticNonlinearity(_TermEffect):
             params = {**params, "inner_order": n, "orders_tried": table}
             refit = inner_refit
         cands.append((params, lambda d: fit_wiener(refit, d)))
-        return cands
+        return cands + self._filtered_curves(ctx)
+
+    #: Degrees of the curve between the two filters (each as powers at every input lag).
+    between_degrees = (3, 5, 7, 9)
+    #: Training samples per parameter below which a degree is not tried.
+    samples_per_parameter = 100
+
+    def _filtered_curves(
+        self, ctx: Context
+    ) -> list[tuple[dict[str, Any], Callable[[Dataset], Model]]]:
+        """Wiener–Hammerstein: a curve *between* two filters, the first one from the data.
+
+        The Hammerstein terms put the curve on the raw input; in a Wiener–Hammerstein system
+        it acts on the input after a first filter.  That filter is taken from the baseline's
+        own dynamics: the split of its poles and zeros that best explains the training data
+        (:func:`tendonkit.plugins._bla_split.best_split`), written as ``second_order_section``
+        input blocks; the baseline's structure is identified again on the filtered input,
+        with the curve as powers 2…d of it at every input lag the model reads.  Refined as a
+        named extension is, the filter's coefficients move with the rest.  SISO ARX baselines
+        only; degrees whose parameters would have fewer than ``samples_per_parameter``
+        training samples each are not tried.
+        """
+        split = best_split(ctx.baseline, ctx.train)
+        if split is None:
+            return []
+        blocks, record = split
+        base = ctx.baseline
+        name = base.input_names[0]
+        inner = transform_inputs(ctx.train, blocks).u[:, 0]
+        mu, sd = float(inner.mean()), float(inner.std()) or 1.0
+        lags = _input_lags(base, 0)
+        n = sum(e.n_samples for e in ctx.train.experiments)
+        rep = base.representation
+        n_linear = len(rep.A) + len(rep.B) if isinstance(rep, ARX) else 0
+        linear = refit_with_input_blocks(ctx.refit, blocks)
+        out: list[tuple[dict[str, Any], Callable[[Dataset], Model]]] = []
+        for degree in self.between_degrees:
+            terms = [
+                Term((Factor(name, power=p, lag=lag, scale=1.0 / sd, offset=mu),))
+                for p in range(2, degree + 1)
+                for lag in lags
+            ]
+            n_params = len(terms) + 4 * len(blocks) + n_linear
+            if n < self.samples_per_parameter * n_params:
+                break
+
+            def build(d: Dataset, terms: list[Term] = terms) -> Model:
+                return extend_with_terms(linear(d), d, terms)
+
+            params = {
+                "structure": "Wiener-Hammerstein",
+                "curve": f"polynomial of degree {degree} between two filters",
+                **record,
+            }
+            out.append((params, build))
+        return out
 
     def signature(
         self, ctx: Context, baseline: Model, valid: Dataset, res: ResidualAnalysis

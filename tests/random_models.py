@@ -40,6 +40,17 @@ def _terms(rng, names, min_lag, n) -> tuple[Term, ...]:
     )
 
 
+def _section(rng) -> dict[str, float]:
+    """A stable section: a complex pole pair of radius < 0.9, any zeros nearby."""
+    r, phi = rng.uniform(0.1, 0.9), rng.uniform(0, np.pi)
+    return {
+        "b1": float(rng.uniform(-1.5, 1.5)),
+        "b2": float(rng.uniform(-0.8, 0.8)),
+        "a1": float(-2 * r * np.cos(phi)),
+        "a2": float(r * r),
+    }
+
+
 def _blocks(rng, names: list[str]) -> tuple[Block, ...]:
     out = []
     for name in names:
@@ -54,6 +65,7 @@ def _blocks(rng, names: list[str]) -> tuple[Block, ...]:
                     "first_order_lag",
                     "rate_limit",
                     "polynomial",
+                    "second_order_section",
                 ]
             )
         )
@@ -70,6 +82,7 @@ def _blocks(rng, names: list[str]) -> tuple[Block, ...]:
                 "c2": float(rng.uniform(-0.3, 0.3)),
                 "c3": float(rng.uniform(-0.1, 0.1)),
             },
+            "second_order_section": _section(rng),
         }.get(kind)
         if params is not None:
             out.append(Block(kind, name, params))

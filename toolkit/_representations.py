@@ -27,9 +27,10 @@ BLOCK_KINDS: dict[str, tuple[str, ...]] = {
     "first_order_lag": ("pole",),
     "rate_limit": ("rate",),
     "polynomial": ("c0", "c1", "c2", "c3"),
+    "second_order_section": ("b1", "b2", "a1", "a2"),
 }
 #: The block kinds that are linear (a model whose blocks are all of these has a state-space form).
-LINEAR_BLOCKS = frozenset({"delay", "first_order_lag"})
+LINEAR_BLOCKS = frozenset({"delay", "first_order_lag", "second_order_section"})
 
 
 @dataclass(frozen=True)
@@ -55,7 +56,12 @@ class Block:
     - ``first_order_lag``: ``v[k+1] = p v[k] + (1-p) s[k]``, ``pole`` in [0, 1);
     - ``rate_limit``: ``v[k] = v[k-1] + clip(s[k] - v[k-1], -rate, rate)``, ``rate`` > 0 per sample;
     - ``polynomial``: a static curve ``v = c0 + c1 s + c2 s^2 + c3 s^3`` (on an output: a Wiener
-      model's curve or a sensor's; on an input: a Hammerstein model's).
+      model's curve or a sensor's; on an input: a Hammerstein model's);
+    - ``second_order_section``: a linear filter ``(1 + b1 q⁻¹ + b2 q⁻²) / (1 + a1 q⁻¹ + a2 q⁻²)``
+      (a monic numerator: the gain is the next block's or the representation's), stable
+      (``|a2| < 1``, ``|a1| < 1 + a2``); it starts at rest at its first input sample, ``v[0] =
+      g s[0]`` with ``g`` its static gain.  A cascade of sections is any rational filter: the
+      first filter of a Wiener–Hammerstein model, before a ``polynomial`` curve or terms.
     """
 
     kind: str

@@ -148,9 +148,38 @@ def add_input_lag(ss: StateSpace, m: int, pole: float) -> StateSpace:
     return StateSpace(A=A, B=B, C=C, D=D, x0=x0, u0=ss.u0, y0=ss.y0)
 
 
+def add_input_section(ss: StateSpace, m: int, params: dict[str, float]) -> StateSpace:
+    """Prepend a ``second_order_section`` on input ``m`` as two states.
+
+    The section ``(1 + b1 q⁻¹ + b2 q⁻²) / (1 + a1 q⁻¹ + a2 q⁻²)`` in controllable form:
+    ``w⁺ = [[-a1, -a2], [1, 0]] w + [1, 0]ᵀ d``, ``v = [b1 - a1, b2 - a2] w + d`` (direct
+    term 1).  It acts on deviations: with static gain ``g`` the model's operating point
+    ``u0`` of the filtered input is ``g`` times the new one of the raw input.
+    """
+    b1, b2, a1, a2 = (float(params[k]) for k in ("b1", "b2", "a1", "a2"))
+    n, nu = ss.B.shape
+    Af = np.array([[-a1, -a2], [1.0, 0.0]])
+    Cf = np.array([b1 - a1, b2 - a2])
+    A = np.zeros((n + 2, n + 2))
+    A[:n, :n] = ss.A
+    A[:n, n:] = np.outer(ss.B[:, m], Cf)
+    A[n:, n:] = Af
+    B = np.vstack([ss.B, np.zeros((2, nu))])
+    B[n, m] = 1.0
+    C = np.hstack([ss.C, np.outer(ss.D[:, m], Cf)])
+    x0 = None if ss.x0 is None else np.concatenate([ss.x0, np.zeros(2)])
+    u0 = ss.u0
+    if u0 is not None:
+        u0 = np.array(u0, dtype=float)
+        u0[m] = u0[m] / ((1.0 + b1 + b2) / (1.0 + a1 + a2))
+    K = None if ss.K is None else np.vstack([ss.K, np.zeros((2, ss.K.shape[1]))])
+    return StateSpace(A=A, B=B, C=C, D=ss.D.copy(), x0=x0, K=K, u0=u0, y0=ss.y0)
+
+
 def to_state_space(model: Model) -> StateSpace:
-    """Linear state-space form of a linear model, input delay and first-order lag blocks
-    included (each block is linear and acts on one input, so their order does not matter).
+    """Linear state-space form of a linear model, input delay, first-order lag and
+    second-order section blocks included (each block is linear and acts on one input, so
+    their order does not matter).
 
     Raises
     ------
@@ -176,4 +205,6 @@ def to_state_space(model: Model) -> StateSpace:
     for b in model.input_blocks:
         if b.kind == "first_order_lag":
             ss = add_input_lag(ss, model.input_names.index(b.signal), float(b.params["pole"]))
+        elif b.kind == "second_order_section":
+            ss = add_input_section(ss, model.input_names.index(b.signal), dict(b.params))
     return ss

@@ -108,8 +108,8 @@ class Model:
 
     @property
     def is_linear(self) -> bool:
-        """True for a linear representation without nonlinear blocks or terms (input delays
-        and first-order lags are linear)."""
+        """True for a linear representation without nonlinear blocks or terms (input delays,
+        first-order lags and second-order sections are linear)."""
         rep = self.representation
         if isinstance(rep, SparseMap):
             return False
@@ -412,7 +412,17 @@ def _check_block(where: str, b: Block, allowed: set[str]) -> list[str]:
         p.append(f"{where}: rate_limit rate must be > 0, found {vals['rate']}.")
     elif b.kind == "first_order_lag" and not 0.0 <= vals["pole"] < 1.0:
         p.append(f"{where}: first_order_lag pole must be in [0, 1), found {vals['pole']}.")
+    elif b.kind == "second_order_section" and not section_is_stable(vals["a1"], vals["a2"]):
+        p.append(
+            f"{where}: a second_order_section must be stable (|a2| < 1, |a1| < 1 + a2), "
+            f"found a1 = {vals['a1']}, a2 = {vals['a2']}."
+        )
     return p
+
+
+def section_is_stable(a1: float, a2: float) -> bool:
+    """Whether ``1 + a1 q⁻¹ + a2 q⁻²`` has both roots strictly inside the unit circle."""
+    return bool(abs(a2) < 1.0 and abs(a1) < 1.0 + a2)
 
 
 def _term_signals(p: list[str], terms: tuple[Term, ...], allowed: set[str]) -> None:

@@ -7,7 +7,8 @@ kind.  Over a whole sequence, ``[stepper.step(u[k]) for k in ...]`` equals
 
 * input blocks act on the inputs before the dynamics, output blocks on the modelled outputs
   after them, in their listed order; a ``delay`` is padded with its first input sample,
-  ``play``, ``rate_limit`` and ``first_order_lag`` start at their first input sample;
+  ``play``, ``rate_limit``, ``first_order_lag`` and ``second_order_section`` start at their
+  first input sample (a section at rest: ``v[0] = g s[0]``, ``g`` its static gain);
 * ``state_space``: ``y = C x + D u`` then ``x ← A x + B u (+ E Θ)`` from the stored ``x0``;
   the terms' histories hold the first input sample and zero outputs before the start;
 * ``arx``: the histories before the start are zero (inputs and outputs);
@@ -41,7 +42,7 @@ from numpy.typing import NDArray
 from .errors import DataError
 from .realize import arx_lag_matrices, fold_offsets
 from .schema import ARX, Block, Model, SparseMap, StateSpace
-from .simulate import arx_max_lag, curve_value, split_delay
+from .simulate import arx_max_lag, curve_value, section_gain, split_delay
 from .terms import CompiledTerms, scalar_evaluator
 
 __all__ = ["Stepper", "feedthrough", "history_length"]
@@ -58,7 +59,8 @@ class _BlockState:
         self.started = False
         self.fifo: deque[float] = deque()
         self.v = 0.0  # play / rate_limit: current output; first_order_lag: deviation
-        self.s0 = 0.0  # first_order_lag: first input sample
+        self.s0 = 0.0  # first_order_lag, second_order_section: first input sample
+        self.w = [0.0, 0.0]  # second_order_section: transposed direct form II state
 
     def value(self, s: float) -> float:
         """Block output for input ``s`` at the current sample (no state change)."""
@@ -86,6 +88,10 @@ class _BlockState:
             return s if not self.started else self.v + self.s0
         if kind == "polynomial":
             return float(curve_value(p, s))
+        if kind == "second_order_section":
+            if not self.started:
+                return section_gain(p) * s
+            return (s - self.s0) + self.w[0] + section_gain(p) * self.s0
         # rate_limit
         v = self.v if self.started else s
         r = p["rate"]
@@ -110,6 +116,13 @@ class _BlockState:
                 self.s0, self.v = s, 0.0
             # The next output of lfilter([0, 1-a], [1, -a], s - s0): z = b1 x - a1 y.
             self.v = (s - self.s0) * (1.0 - a) - self.v * (-a)
+        elif kind == "second_order_section":
+            if not self.started:
+                self.s0, self.w = s, [0.0, 0.0]
+            # lfilter([1, b1, b2], [1, a1, a2], s - s0) in transposed direct form II
+            x = s - self.s0
+            z = x + self.w[0]
+            self.w = [p["b1"] * x - p["a1"] * z + self.w[1], p["b2"] * x - p["a2"] * z]
         self.started = True
         return out
 

@@ -47,7 +47,7 @@ static int load_blocks(reader *r, tk_block *b, int nb, int nsig) {
     int k;
     for (k = 0; k < nb; k++) {
         b[k].sig = next_int(r, 0, nsig - 1);
-        b[k].kind = next_int(r, 0, 6);
+        b[k].kind = next_int(r, 0, 7);
         b[k].p0 = next(r);
         b[k].p1 = next(r);
         b[k].p2 = next(r); /* a cubic's c2, c3 (0 for the other kinds) */
@@ -336,7 +336,7 @@ void tk_reset(tk_model *m) {
 /* ------------------------------------------------------------------ blocks */
 
 static double block_value(const tk_model *m, const tk_block *b, double s) {
-    const double *st = m->S + b->off; /* started, v, s0, head, fifo */
+    const double *st = m->S + b->off; /* started, v (a section: w1), s0, head (a section: w2), fifo */
     int started = st[0] != 0.0;
     double v, z;
     switch (b->kind) {
@@ -364,6 +364,11 @@ static double block_value(const tk_model *m, const tk_block *b, double s) {
         return started ? st[1] + st[2] : s;
     case 6: /* polynomial: c0 + c1 s + c2 s^2 + c3 s^3 */
         return b->p0 + s * (b->p1 + s * (b->p2 + s * b->p3));
+    case 7: { /* second-order section (1 + b1 q^-1 + b2 q^-2) / (1 + a1 q^-1 + a2 q^-2) at rest
+                 at its first input s0: g s0 + (s - s0) + w1, g its static gain */
+        double g = (1.0 + b->p0 + b->p1) / (1.0 + b->p2 + b->p3);
+        return started ? g * st[2] + (s - st[2]) + st[1] : g * s;
+    }
     default: /* rate limit */
         v = started ? st[1] : s;
         return v + pmin(pmax(s - v, -b->p0), b->p0);
@@ -395,6 +400,18 @@ static double block_commit(tk_model *m, const tk_block *b, double s) {
             st[1] = 0.0;
         }
         st[1] = (s - st[2]) * (1.0 - a) - st[1] * (-a);
+    } else if (b->kind == 7) { /* transposed direct form II on x = s - s0: st[1], st[3] */
+        double x, z, w1;
+        if (!started) {
+            st[2] = s;
+            st[1] = 0.0;
+            st[3] = 0.0;
+        }
+        x = s - st[2];
+        z = x + st[1];
+        w1 = b->p0 * x - b->p2 * z + st[3];
+        st[3] = b->p1 * x - b->p3 * z;
+        st[1] = w1;
     }
     st[0] = 1.0;
     return out;

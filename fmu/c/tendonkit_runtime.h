@@ -30,7 +30,7 @@
 #define TK_MAGIC 7318.2026 /* first number of every model.tkm */
 
 typedef struct {
-    int sig, kind;   /* signal index; 0 delay, 1 dead_zone, 2 saturation, 3 play, 4 lag, 5 rate, 6 polynomial */
+    int sig, kind;   /* signal index; 0 delay, 1 dead_zone, 2 saturation, 3 play, 4 lag, 5 rate, 6 polynomial, 7 second-order section */
     double p0, p1;   /* parameters (delay: whole samples n and fraction a; polynomial: c0, c1) */
     double p2, p3;   /* polynomial: c2, c3 */
     int n;           /* delay: whole samples */

@@ -335,7 +335,9 @@ def test_nonlinear_models_and_blocks_are_refused_by_the_linear_mpc(robot):
     with pytest.raises(OptionError, match="sparse_map"):
         LinearMPC(tendon_sparse_map())
     dz = robot.replace(input_blocks=(Block("dead_zone", "F1", {"threshold": 1.0, "center": 0.0}),))
-    with pytest.raises(OptionError, match=r"dead_zone.*only 'delay' and 'first_order_lag'"):
+    with pytest.raises(
+        OptionError, match=r"dead_zone.*only 'delay', 'first_order_lag' and 'second_order_section'"
+    ):
         LinearMPC(dz)
     with pytest.raises(OptionError, match="sparse_map models"):
         NonlinearMPC(robot)

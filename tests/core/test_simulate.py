@@ -190,7 +190,8 @@ def test_output_terms_must_be_delayed():
 
 
 def test_lag_and_delay_blocks_have_an_exact_state_space_form():
-    """Input delays and first-order lags are linear: ``to_state_space`` realises them as states,
+    """Input delays, first-order lags and second-order sections are linear: ``to_state_space``
+    realises them as states,
     and python-control simulates that realisation to the same outputs as ``simulate`` runs the
     blocks (from rest; the lag starts at its input's first value, here zero)."""
     from tendonkit.realize import to_state_space
@@ -204,6 +205,7 @@ def test_lag_and_delay_blocks_have_an_exact_state_space_form():
         Block("first_order_lag", "a", {"pole": 0.85}),
         Block("delay", "b", {"samples": 3.0}),
         Block("first_order_lag", "b", {"pole": 0.5}),
+        Block("second_order_section", "a", {"b1": -0.4, "b2": 0.6, "a1": -1.1, "a2": 0.45}),
     )
     m = Model(
         name="lagged", dt=0.01, inputs=(Signal("a"), Signal("b")), outputs=(Signal("y"),),
@@ -214,12 +216,39 @@ def test_lag_and_delay_blocks_have_an_exact_state_space_form():
     u[0] = 0.0
     ss = to_state_space(m)
     plain = to_state_space(m.replace(input_blocks=())).A.shape[0]
-    assert ss.A.shape[0] == plain + 3 + 2  # three delay registers, two lag states
+    assert ss.A.shape[0] == plain + 3 + 2 + 2  # three delay registers, two lags, a section
     ref = control.forced_response(
         control.ss(ss.A, ss.B, ss.C, ss.D, m.dt), U=u.T, X0=np.zeros(ss.A.shape[0])
     ).outputs
     np.testing.assert_allclose(simulate(m, u, initial="zero")[:, 0], np.ravel(ref), atol=1e-12)
     assert not m.replace(input_blocks=(Block("play", "a", {"width": 0.1}),)).is_linear
+
+
+def test_a_second_order_section_is_its_transfer_function_started_at_rest():
+    """``(1 + b1 q⁻¹ + b2 q⁻²) / (1 + a1 q⁻¹ + a2 q⁻²)`` (scipy's lfilter) on the input's
+    deviation from its first sample, plus the static gain times that sample; the stepper gives
+    the same numbers one sample at a time; an unstable section is not a model."""
+    from scipy.signal import lfilter
+
+    from tendonkit.errors import SchemaError
+    from tendonkit.stepper import Stepper
+
+    p = {"b1": 0.3, "b2": -0.2, "a1": -1.5, "a2": 0.8}
+    s = 2.0 + np.random.default_rng(7).normal(size=400)
+    v = apply_block(Block("second_order_section", "u", p), s)
+    gain = (1 + 0.3 - 0.2) / (1 - 1.5 + 0.8)
+    expected = lfilter([1, 0.3, -0.2], [1, -1.5, 0.8], s - s[0]) + gain * s[0]
+    np.testing.assert_allclose(v, expected, atol=1e-12)
+    assert v[0] == pytest.approx(gain * s[0])
+    rep = ARX(A=(), B=(np.array([[1.0]]),), nk=(0,))
+    m = Model("sos", 1.0, (Signal("u"),), (Signal("y"),), rep,
+              input_blocks=(Block("second_order_section", "u", p),))  # fmt: skip
+    stepper = Stepper(m)
+    stepped = np.array([stepper.step(np.array([x]))[0] for x in s])
+    np.testing.assert_allclose(stepped, simulate(m, s[:, None], initial="model")[:, 0], atol=1e-12)
+    np.testing.assert_allclose(stepped, v, atol=1e-12)
+    with pytest.raises(SchemaError, match="must be stable"):
+        m.replace(input_blocks=(Block("second_order_section", "u", {**p, "a2": 1.0}),))
 
 
 def _wiener(c: tuple[float, float, float, float]) -> Model:

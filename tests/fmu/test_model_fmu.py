@@ -191,6 +191,7 @@ def _synthetic(kind: str) -> Model:
         Block("first_order_lag", "T4", {"pole": 0.6}),
         Block("rate_limit", "T1", {"rate": 5.0}),
         Block("saturation", "T3", {"lower": 40.0, "upper": 170.0}),
+        Block("second_order_section", "T4", {"b1": -0.5, "b2": 0.3, "a1": -1.2, "a2": 0.5}),
     )
     blocks_out = (
         Block("play", "q1", {"width": 0.002}),

@@ -241,3 +241,27 @@ def test_cascaded_tanks_default_options_see_the_overflow():
     test = {n: (t, i) for n, t, i in next(c[2] for c in _raw_cases() if c[0] == "Cascaded tanks")}
     base, ext = (_bench().rmse(m, *test["Cascaded tanks"]) for m in (d.baseline, d.extended))
     assert ext < 0.6 < base  # the refined clip: below the best linear model's 0.60 V
+
+
+def test_wiener_hammerstein_curve_is_found_between_two_filters():
+    """Default options on the Wiener–Hammerstein benchmark, the diagnosis inside the training
+    record (bench_real's split: 75 000 samples to fit, 25 000 to check): the circuit's diode
+    curve is named ``static_nonlinearity`` with the curve *between* two filters — the first
+    one split off the baseline's own poles and zeros as ``second_order_section`` input blocks —
+    and the extended model, refined by simulation error with the filter, meets issue 18's
+    target on the official test record: <= 5 mV (the linear baseline 43.9 mV; published
+    block-structured 0.28 mV, dynoNet 1.2 mV)."""
+    bench = _bench()
+    _, train, tests = next(c for c in _raw_cases() if c[0] == "Wiener-Hammerstein")
+    fit_part, check = bench.split_training(train)
+    d = diagnose(fit_part, check)
+    top = ", ".join(f"{f.effect} {f.gain:+.2f} (p_adj {f.p_adjusted:.1e})" for f in d.findings[:3])
+    _, test, init = tests[0]
+    base, ext = (bench.rmse(m, test, init) for m in (d.baseline, d.extended))
+    print(f"\nWiener-Hammerstein (inside training): causes {d.causes}; {top}; test RMSE "
+          f"{base * 1e3:.3g} -> {ext * 1e3:.3g} mV")  # fmt: skip
+    assert d.cause == "static_nonlinearity", top
+    assert d.best is not None and d.best.params["structure"] == "Wiener-Hammerstein"
+    assert "between two filters" in d.best.params["curve"]
+    assert "second_order_section" in [b.kind for b in d.extended.input_blocks]
+    assert ext <= 5e-3 < 40e-3 < base

@@ -118,7 +118,10 @@ def _covering_models() -> list[Model]:
     blocks_in: set[str] = set()
     blocks_out: set[str] = set()
     functions: set[str] = set()
-    need_blocks = {"delay", "dead_zone", "saturation", "play", "first_order_lag", "rate_limit"}
+    need_blocks = {
+        "delay", "dead_zone", "saturation", "play", "first_order_lag", "rate_limit",
+        "second_order_section",
+    }  # fmt: skip
     for seed in range(500):
         kind = KINDS[seed % len(KINDS)]
         model = random_model(seed, kind, 1.0)

@@ -262,7 +262,8 @@ def added_parameters(model: Model) -> int:
     A term has one coefficient per output (per state for state space).  Blocks are counted
     per kind and parameter, not per signal: the effects derive every signal's block from one
     chosen value (a delay, a width as a fraction of each signal's spread), so four play blocks
-    on four inputs add one free parameter, like two on two outputs.
+    on four inputs add one free parameter, like two on two outputs.  Filters
+    (``second_order_section``) are estimated each on its own: every one counts.
     """
     rep = model.representation
     n_terms = len(getattr(rep, "terms", ()))
@@ -273,4 +274,8 @@ def added_parameters(model: Model) -> int:
         for b in blocks
         for key in b.params
     }
-    return n_terms * per_term + len(kinds)
+    sections = [
+        b for b in (*model.input_blocks, *model.output_blocks) if b.kind == "second_order_section"
+    ]
+    own = 4 * len(sections) - (4 if sections else 0)  # the first is among ``kinds``
+    return n_terms * per_term + len(kinds) + own

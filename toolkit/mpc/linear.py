@@ -1,7 +1,7 @@
 """Prediction models of the linear MPC: realisation, reduction, disturbance model, Kalman gain.
 
 Any linear tendonkit model (``state_space``; ``arx`` with or without an ``offset``; input
-``delay`` and ``first_order_lag`` blocks, realised as states) becomes ``x+ = A x + B u``, ``y = C x + D u + y_const`` through
+``delay``, ``first_order_lag`` and ``second_order_section`` blocks, realised as states) becomes ``x+ = A x + B u``, ``y = C x + D u + y_const`` through
 :func:`tendonkit.realize.to_state_space`.  A non-minimal realisation (an ARX(8, 8) model with
 4 inputs and 2 outputs realises to 48 states, of which 16 are needed) is reduced exactly with
 python-control's ``minreal`` (slycot ``tb01pd``), or by balanced truncation to a given order.
@@ -69,8 +69,8 @@ def linear_problems(model: Model) -> list[str]:
     for b in model.input_blocks:
         if b.kind not in LINEAR_BLOCKS:
             problems.append(
-                f"input block {b.kind!r} on {b.signal!r} is nonlinear; only 'delay' and "
-                "'first_order_lag' input blocks are linear."
+                f"input block {b.kind!r} on {b.signal!r} is nonlinear; only 'delay', "
+                "'first_order_lag' and 'second_order_section' input blocks are linear."
             )
     for b in model.output_blocks:
         problems.append(f"output block {b.kind!r} on {b.signal!r} is not supported by the MPC.")

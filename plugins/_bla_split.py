@@ -80,9 +80,7 @@ def sections(zeros: list[complex], poles: list[complex], signal: str) -> list[Bl
 
     sos = zpk2sos(np.asarray(zeros, complex), np.asarray(poles, complex), 1.0)
     out = []
-    for b0, b1, b2, _a0, a1, a2 in sos:
-        if b0 == 0.0:  # a section without a direct term: its zeros are at infinity
-            b0, b1, b2 = 1.0, 0.0, 0.0
+    for b0, b1, b2, _a0, a1, a2 in sos:  # zpk2sos pads missing zeros at the origin: b0 = 1
         params = {"b1": b1 / b0, "b2": b2 / b0, "a1": a1, "a2": a2}
         out.append(Block("second_order_section", signal, {k: float(v) for k, v in params.items()}))
     return out
@@ -115,9 +113,9 @@ def best_split(model: Model, data: Dataset) -> tuple[list[Block], dict[str, Any]
     pg = _groups(poles)
     zg_all = _groups(zeros)
     zg = [g for g in zg_all if max(abs(z) for z in g) <= MAX_ZERO_RADIUS]
+    far = [g for g in zg_all if max(abs(z) for z in g) > MAX_ZERO_RADIUS]
     data = transform_inputs(data, model.input_blocks)
     exps = [(e.u[:, 0] - e.u[:, 0].mean(), e.y[:, 0]) for e in data.experiments]
-    scale = float(np.std(np.concatenate([u for u, _ in exps]))) or 1.0
     best: tuple[float, list[complex], list[complex]] | None = None
     n_tried = 0
     for k in range(1, min(MAX_GROUPS, len(pg)) + 1):
@@ -129,14 +127,19 @@ def best_split(model: Model, data: Dataset) -> tuple[list[Block], dict[str, Any]
                     z1 = [z for i in zi for z in zg[i]]
                     if len(z1) > len(p1):
                         continue
-                    z2 = [z for g in zg_all for z in g if not any(z in zg[i] for i in zi)]
+                    z2 = [z for g in far + [zg[i] for i in range(len(zg)) if i not in zi]
+                          for z in g]  # fmt: skip
                     b1, a1 = _poly(z1), _poly(p1)
                     b2 = np.concatenate([np.zeros(nk + lead), _poly(z2)])
                     a2 = _poly(p2)
-                    gain1 = np.sum(b1) / np.sum(a1) if abs(np.sum(b1)) > 1e-12 else 1.0
+                    xs = [lfilter(b1, a1, u) for u, _ in exps]
+                    # the inner signal in units of its spread: powers of comparable size
+                    scale = float(np.std(np.concatenate(xs)))
+                    if not scale > 0:
+                        continue
                     cols, ys = [], []
-                    for u, y in exps:
-                        x = lfilter(b1 / gain1, a1, u) / scale
+                    for x, (_, y) in zip(xs, exps, strict=True):
+                        x = x / scale
                         cols.append(
                             np.column_stack(
                                 [lfilter(b2, a2, x**i) for i in range(SPLIT_DEGREE + 1)]

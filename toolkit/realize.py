@@ -154,7 +154,8 @@ def add_input_section(ss: StateSpace, m: int, params: dict[str, float]) -> State
     The section ``(1 + b1 q⁻¹ + b2 q⁻²) / (1 + a1 q⁻¹ + a2 q⁻²)`` in controllable form:
     ``w⁺ = [[-a1, -a2], [1, 0]] w + [1, 0]ᵀ d``, ``v = [b1 - a1, b2 - a2] w + d`` (direct
     term 1).  It acts on deviations: with static gain ``g`` the model's operating point
-    ``u0`` of the filtered input is ``g`` times the new one of the raw input.
+    ``u0`` of the filtered input is ``g`` times the new one of the raw input (a section that
+    blocks constants, ``g = 0``, has no raw operating point to give a non-zero one: an error).
     """
     b1, b2, a1, a2 = (float(params[k]) for k in ("b1", "b2", "a1", "a2"))
     n, nu = ss.B.shape
@@ -169,9 +170,15 @@ def add_input_section(ss: StateSpace, m: int, params: dict[str, float]) -> State
     C = np.hstack([ss.C, np.outer(ss.D[:, m], Cf)])
     x0 = None if ss.x0 is None else np.concatenate([ss.x0, np.zeros(2)])
     u0 = ss.u0
-    if u0 is not None:
+    if u0 is not None and u0[m] != 0.0:
+        gain = (1.0 + b1 + b2) / (1.0 + a1 + a2)
+        if not abs(gain) > 1e-9:
+            raise SchemaError(
+                f"A second_order_section on input {m} blocks constant signals (static gain "
+                f"{gain:.3g}), so no input gives the model's operating point {u0[m]:.6g} behind it."
+            )
         u0 = np.array(u0, dtype=float)
-        u0[m] = u0[m] / ((1.0 + b1 + b2) / (1.0 + a1 + a2))
+        u0[m] = u0[m] / gain
     K = None if ss.K is None else np.vstack([ss.K, np.zeros((2, ss.K.shape[1]))])
     return StateSpace(A=A, B=B, C=C, D=ss.D.copy(), x0=x0, K=K, u0=u0, y0=ss.y0)
 

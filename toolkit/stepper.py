@@ -91,7 +91,8 @@ class _BlockState:
         if kind == "second_order_section":
             if not self.started:
                 return section_gain(p) * s
-            return (s - self.s0) + self.w[0] + section_gain(p) * self.s0
+            # lfilter's order of operations (y = w0 + b0·x), then the start's level
+            return (self.w[0] + (s - self.s0)) + section_gain(p) * self.s0
         # rate_limit
         v = self.v if self.started else s
         r = p["rate"]
@@ -119,10 +120,11 @@ class _BlockState:
         elif kind == "second_order_section":
             if not self.started:
                 self.s0, self.w = s, [0.0, 0.0]
-            # lfilter([1, b1, b2], [1, a1, a2], s - s0) in transposed direct form II
+            # lfilter([1, b1, b2], [1, a1, a2], s - s0) in transposed direct form II, its
+            # operations in scipy's order, so that the two agree to the last bit
             x = s - self.s0
-            z = x + self.w[0]
-            self.w = [p["b1"] * x - p["a1"] * z + self.w[1], p["b2"] * x - p["a2"] * z]
+            z = self.w[0] + x
+            self.w = [(self.w[1] + x * p["b1"]) - z * p["a1"], x * p["b2"] - z * p["a2"]]
         self.started = True
         return out
 
@@ -230,7 +232,7 @@ class Stepper:
             return [None if not np.isfinite(v) else float(v) for v in np.ravel(a)]
 
         blocks = [
-            {"started": b.started, "fifo": list(b.fifo), "v": b.v, "s0": b.s0}
+            {"started": b.started, "fifo": list(b.fifo), "v": b.v, "s0": b.s0, "w": list(b.w)}
             for chain in (self._in_blocks, self._out_blocks)
             for _, b in chain.items
         ]
@@ -291,6 +293,7 @@ class Stepper:
             b.started = bool(saved["started"])
             b.fifo = deque(float(v) for v in saved["fifo"])
             b.v, b.s0 = float(saved["v"]), float(saved["s0"])
+            b.w = [float(v) for v in saved.get("w", (0.0, 0.0))]
 
     # ------------------------------------------------------------------ public
     def outputs(self, u: Sequence[float] | FloatArray) -> FloatArray:

@@ -367,7 +367,7 @@ static double block_value(const tk_model *m, const tk_block *b, double s) {
     case 7: { /* second-order section (1 + b1 q^-1 + b2 q^-2) / (1 + a1 q^-1 + a2 q^-2) at rest
                  at its first input s0: g s0 + (s - s0) + w1, g its static gain */
         double g = (1.0 + b->p0 + b->p1) / (1.0 + b->p2 + b->p3);
-        return started ? g * st[2] + (s - st[2]) + st[1] : g * s;
+        return started ? (st[1] + (s - st[2])) + g * st[2] : g * s; /* scipy's order */
     }
     default: /* rate limit */
         v = started ? st[1] : s;
@@ -408,9 +408,9 @@ static double block_commit(tk_model *m, const tk_block *b, double s) {
             st[3] = 0.0;
         }
         x = s - st[2];
-        z = x + st[1];
-        w1 = b->p0 * x - b->p2 * z + st[3];
-        st[3] = b->p1 * x - b->p3 * z;
+        z = st[1] + x;
+        w1 = (st[3] + x * b->p0) - z * b->p2;
+        st[3] = x * b->p1 - z * b->p3;
         st[1] = w1;
     }
     st[0] = 1.0;

@@ -227,11 +227,11 @@ def test_lag_and_delay_blocks_have_an_exact_state_space_form():
 def test_a_second_order_section_is_its_transfer_function_started_at_rest():
     """``(1 + b1 q⁻¹ + b2 q⁻²) / (1 + a1 q⁻¹ + a2 q⁻²)`` (scipy's lfilter) on the input's
     deviation from its first sample, plus the static gain times that sample; the stepper gives
-    the same numbers one sample at a time; an unstable section is not a model."""
+    the same numbers one sample at a time (bit for bit); an unstable section is not a model."""
     from scipy.signal import lfilter
 
     from tendonkit.errors import SchemaError
-    from tendonkit.stepper import Stepper
+    from tendonkit.stepper import Stepper, _BlockState
 
     p = {"b1": 0.3, "b2": -0.2, "a1": -1.5, "a2": 0.8}
     s = 2.0 + np.random.default_rng(7).normal(size=400)
@@ -247,8 +247,23 @@ def test_a_second_order_section_is_its_transfer_function_started_at_rest():
     stepped = np.array([stepper.step(np.array([x]))[0] for x in s])
     np.testing.assert_allclose(stepped, simulate(m, s[:, None], initial="model")[:, 0], atol=1e-12)
     np.testing.assert_allclose(stepped, v, atol=1e-12)
+    # block by block the stepper does lfilter's operations in lfilter's order: the same bits
+    state = _BlockState(Block("second_order_section", "u", p))
+    np.testing.assert_array_equal([state.commit(float(x)) for x in s], v)
     with pytest.raises(SchemaError, match="must be stable"):
         m.replace(input_blocks=(Block("second_order_section", "u", {**p, "a2": 1.0}),))
+    # realised around an operating point: the raw input's is the filtered one's over the gain,
+    # and a section that blocks constants has none to give
+    from tendonkit.realize import to_state_space
+
+    ss = StateSpace(np.array([[0.5]]), np.array([[1.0]]), np.array([[1.0]]), np.zeros((1, 1)),
+                    u0=np.array([2.0]), y0=np.array([0.0]))  # fmt: skip
+    lin = Model("ss", 1.0, (Signal("u"),), (Signal("y"),), ss,
+                input_blocks=(Block("second_order_section", "u", p),))  # fmt: skip
+    assert to_state_space(lin).u0[0] == pytest.approx(2.0 / gain)
+    blocking = {"b1": -1.0, "b2": 0.0, "a1": -0.5, "a2": 0.0}
+    with pytest.raises(SchemaError, match="blocks constant signals"):
+        to_state_space(lin.replace(input_blocks=(Block("second_order_section", "u", blocking),)))
 
 
 def _wiener(c: tuple[float, float, float, float]) -> Model:

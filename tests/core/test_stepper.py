@@ -91,6 +91,7 @@ ALL_BLOCKS_IN = (
     Block("rate_limit", "T1", {"rate": 0.4}),
     Block("saturation", "T2", {"lower": -1.0, "upper": 1.2}),
     Block("delay", "T2", {"samples": 0.0}),
+    Block("second_order_section", "T1", {"b1": 0.4, "b2": -0.3, "a1": -1.1, "a2": 0.5}),
 )
 ALL_BLOCKS_OUT = (
     Block("first_order_lag", "q1", {"pole": 0.5}),
@@ -99,6 +100,7 @@ ALL_BLOCKS_OUT = (
     Block("delay", "q1", {"samples": 1.0}),
     Block("saturation", "q1", {"lower": -3.0, "upper": 3.0}),
     Block("dead_zone", "q2", {"threshold": 0.01, "center": 0.0}),
+    Block("second_order_section", "q1", {"b1": -0.2, "b2": 0.1, "a1": -0.9, "a2": 0.3}),
 )
 
 

@@ -268,14 +268,13 @@ def added_parameters(model: Model) -> int:
     rep = model.representation
     n_terms = len(getattr(rep, "terms", ()))
     per_term = len(model.outputs) if not hasattr(rep, "E") else rep.n_states  # type: ignore[union-attr]
+    blocks = (*model.input_blocks, *model.output_blocks)
+    sections = [b for b in blocks if b.kind == "second_order_section"]
     kinds = {
         (where, b.kind, key)
-        for where, blocks in (("in", model.input_blocks), ("out", model.output_blocks))
-        for b in blocks
+        for where, chain in (("in", model.input_blocks), ("out", model.output_blocks))
+        for b in chain
+        if b.kind != "second_order_section"
         for key in b.params
     }
-    sections = [
-        b for b in (*model.input_blocks, *model.output_blocks) if b.kind == "second_order_section"
-    ]
-    own = 4 * len(sections) - (4 if sections else 0)  # the first is among ``kinds``
-    return n_terms * per_term + len(kinds) + own
+    return n_terms * per_term + len(kinds) + sum(len(b.params) for b in sections)

@@ -190,6 +190,8 @@ def _render_step(st: dict[str, Any]) -> list[str]:
             f"  {st['step']}. nothing more significant (best of {len(st['findings'])} "
             f"effects tried: {best})"
         ]
+        if st.get("stop"):
+            notes.append(f"     {st['stop']}")
         return lines + notes
     lines = [
         f"  {st['step']}. {st['cause']} ({st['effect']}): fit {st['fit_before']:.2f} -> "

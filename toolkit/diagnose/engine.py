@@ -1131,9 +1131,75 @@ def continue_sequence(
         model, build, fit_now = refine_named(
             chosen, named.build, identifier, train, valid, settings
         )
-        steps.append(_step(step_diag, len(steps) + 1, None, model, fit_now))
+        previous = steps[-1]
+        confirmation = confirm_step(previous.model, model, valid)
+        step = _step(step_diag, len(steps) + 1, None, model, fit_now)
+        if confirmation["p_value"] >= CONFIRM_LEVEL:
+            steps.append(_unconfirmed(step, previous, confirmation))
+            break
+        steps.append(dataclasses.replace(step, confirmation=confirmation))
         done.add(chosen.cause)
     return tuple(steps)
+
+
+#: Level of the confirmation of a later step: its refined model must simulate the validation
+#: data better than the previous step's refined model (:func:`confirm_step`).
+CONFIRM_LEVEL = 0.05
+
+
+def confirm_step(previous: Model | None, model: Model | None, valid: Dataset) -> dict[str, Any]:
+    """The free-run test of a later step's refined model against the previous step's.
+
+    A step is tested, like the first, by its extension's equation-error fit against the
+    previous structure refitted the same way (every candidate is fitted so; refining each is
+    too slow).  Between steps, though, the named model is refined by simulation error, and an
+    extension of another kind can win a later step by making up for what the previous
+    extension's least-squares fit left (a clip level, a gravity term fitted by equation
+    error): a stand-in, whose gain is gone once both are refined.  So the refined model of a
+    later step must also simulate the validation data better than the refined model of the
+    step before (:func:`loss_test` on their free-run losses, no margin, level
+    :data:`CONFIRM_LEVEL`).  A second test that must also reject can only remove causes, so
+    the sequence's family-wise error control is kept.
+    """
+    if previous is None or model is None:
+        return {"p_value": 1.0, "reason": "no model to compare"}
+    y0, s0 = _sim_pair(previous, valid)
+    y1, s1 = _sim_pair(model, valid)
+    test = loss_test(_loss(y0, s0), _loss(y1, s1))
+    return {
+        **test.to_dict(),
+        "route": "free run, refined models",
+        "fit_before": float(np.mean(fit(y0, s0))),
+        "fit_after": float(np.mean(fit(y1, s1))),
+        "level": CONFIRM_LEVEL,
+    }
+
+
+def _unconfirmed(step: Step, previous: Step, confirmation: dict[str, Any]) -> Step:
+    """The last step of a sequence whose named cause failed :func:`confirm_step`."""
+    stop = (
+        f"{step.cause} ({step.gain:+.2f} points as tested, p_adj {step.p_adjusted:.2g}) is not "
+        f"confirmed once refined: its refined model simulates the validation data "
+        f"{confirmation['fit_after']:.2f} % against the previous step's "
+        f"{confirmation['fit_before']:.2f} % (p = {confirmation['p_value']:.2g} >= "
+        f"{CONFIRM_LEVEL}): it made up for the previous extension's fitting error, not for a "
+        "cause"
+    )
+    return dataclasses.replace(
+        step,
+        cause="none",
+        effect=None,
+        gain=0.0,
+        fit=dict(previous.fit),
+        tested_fit=dict(previous.fit),
+        p_adjusted=None,
+        params={},
+        n_params=0,
+        model=None,
+        ambiguous=None,
+        stop=stop,
+        confirmation=confirmation,
+    )
 
 
 #: Iterations of the simulation-error refinement of a named extension (each costs one

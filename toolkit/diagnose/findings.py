@@ -230,6 +230,9 @@ class Step:
     skipped: tuple[dict[str, str], ...] = ()
     #: Why the sequence stopped after this step, when it was not for lack of evidence.
     stop: str | None = None
+    #: Steps after the first: the free-run test of this step's refined model against the
+    #: previous step's (``p_value``, ``fit_before``, ``fit_after``; engine.confirm_step).
+    confirmation: dict[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready form (without the model)."""
@@ -246,6 +249,7 @@ class Step:
             "n_params": self.n_params,
             "ambiguous": self.ambiguous,
             "stop": self.stop,
+            "confirmation": self.confirmation,
             "findings": [f.to_dict() for f in self.findings],
             "skipped": list(self.skipped),
         }

@@ -100,6 +100,8 @@ def write_report(
         for st in d["sequence"][1:]:
             for note in reshaping_notes(st):
                 rep.text(f"Step {st['step']}, {note}.", note=True)
+            if st["cause"] == "none" and st.get("stop"):
+                rep.text(f"Step {st['step']}: {st['stop']}.", note=True)
         rep.text(
             f"Final model: fit {d['baseline']['fit']:.2f} % -> {d['extended']['fit']:.2f} % "
             f"(total gain {d['extended']['total_gain']:+.2f} points); causes: "

@@ -1012,3 +1012,33 @@ def test_a_candidate_that_reshapes_a_named_cause_is_left_out_of_the_choice():
     assert tried[0]["excluded"].startswith("reshapes the hysteresis named at step 1")
     ctx.trying = "gravity"  # another cause: nothing is left out
     assert ctx.select(cands)[0] == {"structure": "sign of velocity"}
+
+
+def test_a_later_cause_is_confirmed_where_its_evidence_is_the_free_run():
+    """The confirmation of a later step reads the validation free run: it tests a cause named
+    on that evidence, and neither tests nor drops one seen directly in the data (a clip) or
+    shown on held-out training blocks because the validation record is short."""
+    from tendonkit.diagnose.engine import _evidence_beside_the_free_run, confirm_step
+
+    def finding(test: dict) -> Finding:
+        return Finding("saturation", "saturation", 1.0, {"y": 90.0}, 0.1, 1e-4, True, {}, {},
+                       "", test=test)  # fmt: skip
+
+    fit_route = {"p_value": 1e-6, "loss_p_value": 1e-6}
+    assert _evidence_beside_the_free_run(finding(fit_route)) is None
+    seen = {**fit_route, "loss_p_value": 0.3, "direct": {"p_value": 1e-12}}
+    assert "seen directly" in _evidence_beside_the_free_run(finding(seen))
+    held = {**fit_route, "loss_p_value": 0.08, "held_out": {"p_value": 2e-6}}
+    assert "held-out blocks" in _evidence_beside_the_free_run(finding(held))
+    # the test itself: a model against itself is not confirmed; against a worse one it is
+    from tendonkit import identify
+
+    train, _ = lightly_damped_oscillator(3000, seed=1)
+    valid, _ = lightly_damped_oscillator(3000, seed=2)
+    model = identify(train, "arx")
+    same = confirm_step(model, model, valid)
+    assert same["applied"] and same["p_value"] >= 0.05
+    rep = model.representation
+    worse = model.replace(representation=dataclasses.replace(rep, B=tuple(0.8 * b for b in rep.B)))
+    better = confirm_step(worse, model, valid)
+    assert better["p_value"] < 1e-3 and better["fit_after"] > better["fit_before"] + 1.0

@@ -186,8 +186,9 @@ def _render_step(st: dict[str, Any]) -> list[str]:
             if top and top.get("gain") is not None
             else "none"
         )
+        what = "confirmed" if st.get("stop") else "significant"
         lines = [
-            f"  {st['step']}. nothing more significant (best of {len(st['findings'])} "
+            f"  {st['step']}. nothing more {what} (best of {len(st['findings'])} "
             f"effects tried: {best})"
         ]
         if st.get("stop"):

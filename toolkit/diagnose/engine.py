@@ -1084,10 +1084,12 @@ def continue_sequence(
     another: a force lag hides the plant's friction, which gains nothing against the
     baseline) without the candidates that only reshape a cause named (:attr:`Context.named`;
     docs/diagnose.md, step 8), and tests them exactly as the first step does (Holm at
-    ``alpha`` within the step).  The sequence stops at the first step where nothing is significant, or after
-    ``max_causes`` causes: a fixed-sequence (gatekeeping) procedure, so the first step whose
-    null hypothesis ("nothing more to find") is true is the only one that can add a false
-    cause, with probability at most ``alpha`` (docs/diagnose.md, *Several causes*).
+    ``alpha`` within the step); a named cause must then be confirmed by the refined models
+    (:func:`confirm_step`).  The sequence stops at the first step where nothing is
+    significant or confirmed, or after ``max_causes`` causes: a fixed-sequence (gatekeeping)
+    procedure, so the first step whose null hypothesis ("nothing more to find") is true is
+    the only one that can add a false cause, with probability at most ``alpha``
+    (docs/diagnose.md, *Several causes*).
     """
     best = first.best
     if best is None or best.model is None:
@@ -1132,22 +1134,48 @@ def continue_sequence(
             chosen, named.build, identifier, train, valid, settings
         )
         previous = steps[-1]
-        confirmation = confirm_step(previous.model, model, valid)
         step = _step(step_diag, len(steps) + 1, None, model, fit_now)
-        if confirmation["p_value"] >= CONFIRM_LEVEL:
-            steps.append(_unconfirmed(step, previous, confirmation))
-            break
+        other = _evidence_beside_the_free_run(chosen)
+        confirmation: dict[str, Any]
+        if other is not None or previous.model is None:
+            confirmation = {"applied": False, "reason": other or "no model to compare"}
+        else:
+            confirmation = confirm_step(previous.model, model, valid)
+            if float(confirmation["p_value"]) >= CONFIRM_LEVEL:
+                steps.append(_unconfirmed(step, confirmation))
+                break
         steps.append(dataclasses.replace(step, confirmation=confirmation))
         done.add(chosen.cause)
     return tuple(steps)
 
 
 #: Level of the confirmation of a later step: its refined model must simulate the validation
-#: data better than the previous step's refined model (:func:`confirm_step`).
+#: data better than the previous step's refined model (:func:`confirm_step`).  Not an error
+#: rate of the procedure (the step must also pass its own test at ``alpha``): the level at
+#: which a gain that refinement leaves is believed.
 CONFIRM_LEVEL = 0.05
 
 
-def confirm_step(previous: Model | None, model: Model | None, valid: Dataset) -> dict[str, Any]:
+def _evidence_beside_the_free_run(f: Finding) -> str | None:
+    """Why a named finding's confirmation would not test its evidence, or None.
+
+    The confirmation reads the validation free run.  A cause seen directly in the data (a
+    clipped output) is not a gain of fit, and a cause shown on held-out blocks of the training
+    record because the validation record is too short for the free-run test is not testable
+    there: neither is confirmed, and neither is dropped.
+    """
+    test = f.test or {}
+    direct = test.get("direct")
+    loss_p = test.get("loss_p_value", test.get("p_value", 1.0))
+    if direct and direct.get("p_value", 1.0) <= loss_p:
+        return "seen directly in the data, not inferred from the fit"
+    held = test.get("held_out")
+    if held and held.get("p_value", 1.0) < loss_p:
+        return "shown on held-out blocks of the training data: the validation record is short"
+    return None
+
+
+def confirm_step(previous: Model, model: Model, valid: Dataset) -> dict[str, Any]:
     """The free-run test of a later step's refined model against the previous step's.
 
     A step is tested, like the first, by its extension's equation-error fit against the
@@ -1159,10 +1187,10 @@ def confirm_step(previous: Model | None, model: Model | None, valid: Dataset) ->
     later step must also simulate the validation data better than the refined model of the
     step before (:func:`loss_test` on their free-run losses, no margin, level
     :data:`CONFIRM_LEVEL`).  A second test that must also reject can only remove causes, so
-    the sequence's family-wise error control is kept.
+    the sequence's family-wise error control is kept.  "Refined": the models as handed on,
+    which keep their least-squares fit where the held-out check refused the refinement, or
+    with ``refine=False``.
     """
-    if previous is None or model is None:
-        return {"p_value": 1.0, "reason": "no model to compare"}
     y0, s0 = _sim_pair(previous, valid)
     y1, s1 = _sim_pair(model, valid)
     test = loss_test(_loss(y0, s0), _loss(y1, s1))
@@ -1171,27 +1199,29 @@ def confirm_step(previous: Model | None, model: Model | None, valid: Dataset) ->
         "route": "free run, refined models",
         "fit_before": float(np.mean(fit(y0, s0))),
         "fit_after": float(np.mean(fit(y1, s1))),
+        "applied": True,
         "level": CONFIRM_LEVEL,
     }
 
 
-def _unconfirmed(step: Step, previous: Step, confirmation: dict[str, Any]) -> Step:
-    """The last step of a sequence whose named cause failed :func:`confirm_step`."""
+def _unconfirmed(step: Step, confirmation: dict[str, Any]) -> Step:
+    """The last step of a sequence whose named cause failed :func:`confirm_step`: it names
+    nothing, like a step where nothing is significant, and says why."""
+    p_adj = f", p_adj {step.p_adjusted:.2g}" if step.p_adjusted is not None else ""
     stop = (
-        f"{step.cause} ({step.gain:+.2f} points as tested, p_adj {step.p_adjusted:.2g}) is not "
-        f"confirmed once refined: its refined model simulates the validation data "
-        f"{confirmation['fit_after']:.2f} % against the previous step's "
-        f"{confirmation['fit_before']:.2f} % (p = {confirmation['p_value']:.2g} >= "
-        f"{CONFIRM_LEVEL}): it made up for the previous extension's fitting error, not for a "
-        "cause"
+        f"{step.cause} ({step.gain:+.2f} points as tested{p_adj}) is not confirmed: the "
+        f"model it hands on simulates the validation data {confirmation['fit_after']:.2f} % "
+        f"against the previous step's {confirmation['fit_before']:.2f} % (p = "
+        f"{confirmation['p_value']:.2g} >= {CONFIRM_LEVEL}); its gain as tested made up for the "
+        "previous extension's least-squares fit, which refinement removes"
     )
     return dataclasses.replace(
         step,
         cause="none",
         effect=None,
         gain=0.0,
-        fit=dict(previous.fit),
-        tested_fit=dict(previous.fit),
+        fit=dict(step.fit_before),
+        tested_fit=dict(step.fit_before),
         p_adjusted=None,
         params={},
         n_params=0,

@@ -207,7 +207,8 @@ class Step:
     """One step of a diagnosis's sequence of causes (:attr:`Diagnosis.steps`).
 
     Step 1 starts from the baseline, step ``k`` from the model step ``k - 1`` named.  The last
-    step is the one where nothing more was significant (``cause == "none"``), unless the
+    step is the one where nothing more was significant, or where the cause named was not
+    confirmed by the refined models (``cause == "none"``; :attr:`stop` says why), unless the
     sequence stopped at ``max_causes``.
     """
 
@@ -231,7 +232,8 @@ class Step:
     #: Why the sequence stopped after this step, when it was not for lack of evidence.
     stop: str | None = None
     #: Steps after the first: the free-run test of this step's refined model against the
-    #: previous step's (``p_value``, ``fit_before``, ``fit_after``; engine.confirm_step).
+    #: previous step's (``applied``, ``p_value``, ``fit_before``, ``fit_after``, or the
+    #: ``reason`` it does not apply; engine.confirm_step).
     confirmation: dict[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:

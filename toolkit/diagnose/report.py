@@ -80,14 +80,17 @@ def write_report(
         rep.text(
             "After a cause is named, its extended model is the baseline of the next step, which "
             "tries the effects of the other causes; the sequence stops at the first step where "
-            "nothing more is significant."
+            "nothing more is significant, or where the cause named is not confirmed once both "
+            "models are refined."
         )
         rep.table(
             ["step", "cause", "fit before [%]", "fit after [%]", "gain [pts]", "adjusted p", "tie"],
             [
                 [
                     st["step"],
-                    st["cause"] if st["cause"] != "none" else "nothing more significant",
+                    st["cause"]
+                    if st["cause"] != "none"
+                    else ("not confirmed" if st.get("stop") else "nothing more significant"),
                     st["fit_before"],
                     st["fit"],
                     st["gain"],

@@ -7,9 +7,11 @@ candidate, and the data decide.  For each split ``(G1, G2)`` the inner signal ``
 formed, and ``y ≈ Σ_i c_i G2(x^i)`` (``i`` = 0…3) is fitted by least squares — linear in the
 ``c_i`` with ``G1`` and ``G2`` fixed, a free-run simulation (no output is fed back), so its
 residual is the split's simulation error.  The split with the smallest error gives ``G1`` as
-``second_order_section`` blocks (Sjöberg, Lauwers & Schoukens, "Initial estimates for block
-structured nonlinear systems", 2012, do the same brute-force scan; the refinement by
-simulation error that follows every named extension then moves the filter freely).
+``second_order_section`` blocks (the brute-force scan of Sjöberg, Lauwers & Schoukens,
+"Identification of Wiener–Hammerstein models: two algorithms based on the best split of a
+linear model applied to the SYSID'09 benchmark problem", Control Engineering Practice 20,
+2012; the refinement by simulation error that follows every named extension then moves the
+filter freely).
 
 Only a *linear* model is split, because only a linear model is a best linear approximation:
 after a cause is named (a later step of a diagnosis), the model's linear part is the rest of a

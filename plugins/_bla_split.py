@@ -48,13 +48,10 @@ def _groups(roots: Any) -> list[list[complex]]:
     left = list(np.asarray(roots, dtype=complex))
     while left:
         r = left.pop(0)
-        if abs(r.imag) <= 1e-9 * max(1.0, abs(r)):
+        if abs(r.imag) <= 1e-9 * max(1.0, abs(r)) or not left:
             out.append([complex(r.real, 0.0)])
             continue
-        k = int(np.argmin([abs(x - np.conj(r)) for x in left])) if left else -1
-        if k < 0:
-            out.append([complex(r.real, 0.0)])
-            continue
+        k = int(np.argmin([abs(x - np.conj(r)) for x in left]))
         out.append([r, left.pop(k)])
     return out
 

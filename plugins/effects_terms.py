@@ -34,6 +34,7 @@ from tendonkit.diagnose import (
 from tendonkit.errors import TendonkitError
 from tendonkit.hookspecs import hookimpl
 from tendonkit.identification import without_training_fit
+from tendonkit.output_error import free_parameters
 from tendonkit.plugins._arx_structure import PARSIMONY as ARX_PARSIMONY
 from tendonkit.plugins._arx_structure import as_tuple as _as_tuple
 from tendonkit.plugins._arx_structure import cv_folds, cv_window, held_out_error
@@ -538,8 +539,7 @@ class StaticNonlinearity(_TermEffect):
         mu, sd = float(inner.mean()), float(inner.std()) or 1.0
         lags = _input_lags(base, 0)
         n = sum(e.n_samples for e in ctx.train.experiments)
-        rep = base.representation
-        n_linear = len(rep.A) + len(rep.B) if isinstance(rep, ARX) else 0
+        n_linear = free_parameters(base, blocks=False)
         linear = refit_with_input_blocks(ctx.refit, blocks)
         out: list[tuple[dict[str, Any], Callable[[Dataset], Model]]] = []
         for degree in self.between_degrees:

@@ -33,6 +33,17 @@ BLOCK_KINDS: dict[str, tuple[str, ...]] = {
 LINEAR_BLOCKS = frozenset({"delay", "first_order_lag", "second_order_section"})
 
 
+def section_gain(p: dict[str, float]) -> float:
+    """Static gain ``(1 + b1 + b2) / (1 + a1 + a2)`` of a ``second_order_section`` block's
+    parameters (the C runtime of model FMUs computes it in the same order)."""
+    return float((1.0 + p["b1"] + p["b2"]) / (1.0 + p["a1"] + p["a2"]))
+
+
+def section_is_stable(a1: float, a2: float) -> bool:
+    """Whether ``1 + a1 q⁻¹ + a2 q⁻²`` has both roots strictly inside the unit circle."""
+    return bool(abs(a2) < 1.0 and abs(a1) < 1.0 + a2)
+
+
 @dataclass(frozen=True)
 class Signal:
     """A named signal with a unit (SI, free text such as ``"rad"`` or ``"N"``)."""

@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ._representations import ARX, StateSpace
+from ._representations import ARX, StateSpace, section_gain
 from ._response import delay_taps
 from .errors import SchemaError
 
@@ -171,7 +171,7 @@ def add_input_section(ss: StateSpace, m: int, params: dict[str, float]) -> State
     x0 = None if ss.x0 is None else np.concatenate([ss.x0, np.zeros(2)])
     u0 = ss.u0
     if u0 is not None and u0[m] != 0.0:
-        gain = (1.0 + b1 + b2) / (1.0 + a1 + a2)
+        gain = section_gain(params)
         if not abs(gain) > 1e-9:
             raise SchemaError(
                 f"A second_order_section on input {m} blocks constant signals (static gain "

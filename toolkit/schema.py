@@ -38,6 +38,7 @@ from ._representations import (
     Signal,
     SparseMap,
     StateSpace,
+    section_is_stable,
 )
 from ._schema_io import model_fields
 from .errors import SchemaError
@@ -418,11 +419,6 @@ def _check_block(where: str, b: Block, allowed: set[str]) -> list[str]:
             f"found a1 = {vals['a1']}, a2 = {vals['a2']}."
         )
     return p
-
-
-def section_is_stable(a1: float, a2: float) -> bool:
-    """Whether ``1 + a1 q⁻¹ + a2 q⁻²`` has both roots strictly inside the unit circle."""
-    return bool(abs(a2) < 1.0 and abs(a1) < 1.0 + a2)
 
 
 def _term_signals(p: list[str], terms: tuple[Term, ...], allowed: set[str]) -> None:

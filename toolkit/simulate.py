@@ -23,6 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from . import _kernel
+from ._representations import section_gain
 from ._response import (
     Initial,
     delay_taps,
@@ -82,22 +83,9 @@ def apply_block(block: Block, s: FloatArray, compiled: bool = True) -> FloatArra
 
         if not s.shape[0]:
             return s.astype(float)
-        num, den = section_coefficients(p)
+        num, den = [1.0, p["b1"], p["b2"]], [1.0, p["a1"], p["a2"]]
         return np.asarray(lfilter(num, den, s - s[0]) + section_gain(p) * s[0])
     raise SimulationError(f"Unknown block kind {block.kind!r}.")  # pragma: no cover
-
-
-def section_coefficients(p: Mapping[str, float]) -> tuple[FloatArray, FloatArray]:
-    """Numerator and denominator of a ``second_order_section`` block (in ``q⁻¹``)."""
-    return (
-        np.array([1.0, float(p["b1"]), float(p["b2"])]),
-        np.array([1.0, float(p["a1"]), float(p["a2"])]),
-    )
-
-
-def section_gain(p: Mapping[str, float]) -> float:
-    """Static gain of a ``second_order_section`` block (its denominator is stable, so not 0)."""
-    return float((1.0 + p["b1"] + p["b2"]) / (1.0 + p["a1"] + p["a2"]))
 
 
 def rate_limiter(s: FloatArray, rate: float) -> FloatArray:

@@ -39,10 +39,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from ._representations import section_gain
 from .errors import DataError
 from .realize import arx_lag_matrices, fold_offsets
 from .schema import ARX, Block, Model, SparseMap, StateSpace
-from .simulate import arx_max_lag, curve_value, section_gain, split_delay
+from .simulate import arx_max_lag, curve_value, split_delay
 from .terms import CompiledTerms, scalar_evaluator
 
 __all__ = ["Stepper", "feedthrough", "history_length"]
@@ -61,6 +62,7 @@ class _BlockState:
         self.v = 0.0  # play / rate_limit: current output; first_order_lag: deviation
         self.s0 = 0.0  # first_order_lag, second_order_section: first input sample
         self.w = [0.0, 0.0]  # second_order_section: transposed direct form II state
+        self.gain = section_gain(self.p) if self.kind == "second_order_section" else 1.0
 
     def value(self, s: float) -> float:
         """Block output for input ``s`` at the current sample (no state change)."""
@@ -90,9 +92,9 @@ class _BlockState:
             return float(curve_value(p, s))
         if kind == "second_order_section":
             if not self.started:
-                return section_gain(p) * s
+                return self.gain * s
             # lfilter's order of operations (y = w0 + b0·x), then the start's level
-            return (self.w[0] + (s - self.s0)) + section_gain(p) * self.s0
+            return (self.w[0] + (s - self.s0)) + self.gain * self.s0
         # rate_limit
         v = self.v if self.started else s
         r = p["rate"]

@@ -1164,11 +1164,10 @@ def _evidence_beside_the_free_run(f: Finding) -> str | None:
     record because the validation record is too short for the free-run test is not testable
     there: neither is confirmed, and neither is dropped.
     """
-    test = f.test or {}
-    direct = test.get("direct")
-    loss_p = test.get("loss_p_value", test.get("p_value", 1.0))
-    if direct and direct.get("p_value", 1.0) <= loss_p:
+    if _seen_directly(f):
         return "seen directly in the data, not inferred from the fit"
+    test = f.test
+    loss_p = test.get("loss_p_value", test.get("p_value", 1.0))
     held = test.get("held_out")
     if held and held.get("p_value", 1.0) < loss_p:
         return "shown on held-out blocks of the training data: the validation record is short"
@@ -1490,7 +1489,7 @@ def _holm_weights(trials: Sequence[Trial]) -> list[float]:
     return [max(t.train_gain, 0.0) for t in trials]
 
 
-def _seen_directly(t: Trial) -> bool:
+def _seen_directly(t: Trial | Finding) -> bool:
     """Whether the finding's evidence is its direct test (the smallest p-value of its routes).
 
     ``min_gain`` is a floor on effects inferred from a better fit: such structure can be real

@@ -71,7 +71,7 @@ FMI_HEADERS = (
     "fmi3PlatformTypes.h",
 )
 RESOURCE = "model.tkm"
-MAGIC, FORMAT = 7318.2026, 3.0  # tendonkit_runtime.h
+MAGIC, FORMAT = 7318.2026, 4.0  # tendonkit_runtime.h
 _LIMIT = 100_000  # the runtime's bound on counts and lags
 #: Part of the binaries' cache key: change it with the compiler commands of :func:`_compile`.
 _BUILD_RECIPE = "2"
@@ -126,7 +126,7 @@ def c_problems(model: Model) -> list[str]:
         problems.append(f"the model reads more than {_LIMIT} samples back")
     if isinstance(rep, ARX):
         outs = set(model.output_names)
-        if any(f.signal in outs and f.lag < 1 for t in rep.terms for f in t.factors):
+        if any(s in outs and f.lag < 1 for t in rep.terms for f in t.factors for s in f.signals):
             problems.append("an ARX term reads an output at lag 0 (an algebraic loop)")
     return problems
 
@@ -157,26 +157,32 @@ def _blocks(blocks: Sequence[Block], names: Sequence[str]) -> list[float]:
     return out
 
 
+#: Numbers per factor in the resource: src, col, lag, diff, src2, col2, code, power, scale,
+#: offset, param, param2 (``tk_load`` reads them in this order).
+_ROW = 12
+
+
 def _factors(model: Model, terms: Sequence[Term]) -> tuple[list[float], list[float], int]:
     """``ptr`` and the factor rows; sources as the stepper resolves names (later wins)."""
     rep = model.representation
     ins, outs = list(model.input_names), list(model.output_names)
     states = [s.name for s in model.states]
     ptr, rows = [0.0], []
+
+    def where(name: str) -> tuple[int, int]:
+        if isinstance(rep, SparseMap):  # states, then inputs (an input name wins)
+            return (1, ins.index(name)) if name in ins else (0, states.index(name))
+        # inputs, then outputs (an output name wins)
+        return (1, outs.index(name)) if name in outs else (0, ins.index(name))
+
     for t in terms:
         for f in t.factors:
-            if isinstance(rep, SparseMap):  # states, then inputs (an input name wins)
-                src, col = (
-                    (1, ins.index(f.signal)) if f.signal in ins else (0, states.index(f.signal))
-                )
-            else:  # inputs, then outputs (an output name wins)
-                src, col = (
-                    (1, outs.index(f.signal)) if f.signal in outs else (0, ins.index(f.signal))
-                )
-            rows += [src, col, f.lag, f.diff, _FN_CODES[f.fn], f.power, f.scale, f.offset, f.param,
-                     f.param2]  # fmt: skip
-        ptr.append(float(len(rows) // 10))
-    return ptr, [float(v) for v in rows], len(rows) // 10
+            src, col = where(f.signal)
+            src2, col2 = where(f.minus) if f.minus else (-1, 0)
+            rows += [src, col, f.lag, f.diff, src2, col2, _FN_CODES[f.fn], f.power, f.scale,
+                     f.offset, f.param, f.param2]  # fmt: skip
+        ptr.append(float(len(rows) // _ROW))
+    return ptr, [float(v) for v in rows], len(rows) // _ROW
 
 
 def model_resource(

@@ -26,11 +26,13 @@ from tendonkit.diagnose import (
     ResidualAnalysis,
     atom_test,
     drop_samples,
+    extend_with_terms,
     refit_with_input_blocks,
     simulate_all,
 )
 from tendonkit.hookspecs import hookimpl
 from tendonkit.metrics import fit
+from tendonkit.plugins import _bodies
 from tendonkit.schema import ARX, Block, Model
 from tendonkit.simulate import aligned, play_operator, simulate_dataset
 from tendonkit.terms import Factor, Term
@@ -620,13 +622,17 @@ class Backlash:
     cause = "backlash"
     description = (
         "Backlash: a play operator of half-width w on every output (joint play between the "
-        "driven and the measured part)."
+        "driven and the measured part); or a dead band in the difference of two outputs (a "
+        "coupling with a gap between two bodies)."
     )
 
     #: Half-widths tried, as fractions of each output's standard deviation.
     fractions = (0.01, 0.02, 0.04, 0.08, 0.16, 0.32, 0.64)
     #: Refinements of the reconstructed driven signal (see :func:`_fit_output_play`).
     refinements = 2
+    #: Half-widths of the gap in a coupling between two outputs, as fractions of the spread of
+    #: their difference.
+    between_fractions = (0.02, 0.05, 0.1, 0.2, 0.4)
 
     def extend(self, ctx: Context) -> Extension | None:
         """Play on every output, half-widths as fractions of each output's spread.
@@ -651,7 +657,33 @@ class Backlash:
                 "fraction_of_std": frac,
             }
             cands.append((params, build))
+        cands += self._between(ctx)
         return _select_and_finish(ctx, self, cands)
+
+    def _between(self, ctx: Context) -> list[tuple[dict[str, Any], Callable[[Dataset], Model]]]:
+        """A gap in a coupling between two bodies whose positions are both outputs: the
+        coupling's force ``k·dead_zone(y_a - y_b, w)`` (plugins/_bodies.py) on every pair, each
+        pair alone and every pair together."""
+        pairs = _bodies.output_pairs(ctx.train)
+        groups = [[p] for p in pairs] + ([pairs] if len(pairs) > 1 else [])
+        cands: list[tuple[dict[str, Any], Callable[[Dataset], Model]]] = []
+        for group in groups:
+            for frac in self.between_fractions:
+                terms = [_bodies.pair_term(p, "sat", param=frac) for p in group]
+
+                def build(data: Dataset, terms: list[Term] = terms) -> Model:
+                    return extend_with_terms(ctx.baseline, data, terms, refit=ctx.refit)
+
+                between = [_bodies.label(p) for p in group]
+                params = {
+                    "where": "between two outputs",
+                    "between": between[0] if len(group) == 1 else between,
+                    "fraction_of_std": frac,
+                    "width": [frac * p[3] for p in group],
+                    "terms": [t.label for t in terms],
+                }
+                cands.append((params, build))
+        return cands
 
     def signature(
         self, ctx: Context, baseline: Model, valid: Dataset, res: ResidualAnalysis

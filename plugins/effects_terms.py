@@ -35,6 +35,7 @@ from tendonkit.errors import TendonkitError
 from tendonkit.hookspecs import hookimpl
 from tendonkit.identification import without_training_fit
 from tendonkit.output_error import free_parameters
+from tendonkit.plugins import _bodies
 from tendonkit.plugins._arx_structure import PARSIMONY as ARX_PARSIMONY
 from tendonkit.plugins._arx_structure import as_tuple as _as_tuple
 from tendonkit.plugins._arx_structure import cv_folds, cv_window, held_out_error
@@ -107,6 +108,8 @@ class CoulombFriction(_TermEffect):
     #: speed, and it named friction for a weight's torque on the generic oscillator (gravity
     #: at dt 0.01, +0.88 points); nonlinear_stiffness tries those smooth curves.
     speed_quantiles = (0.02,)
+    #: Velocity spans (samples) of the friction between two outputs.
+    relative_spans = (1, 3, 8)
 
     def extend(self, ctx: Context) -> Extension | None:
         """Friction proper first; its asymmetry only if a reversing force is supported.
@@ -195,6 +198,26 @@ class CoulombFriction(_TermEffect):
                 # zero at rest, so the asymmetry is not a constant load (that is gravity's).
                 sq = [Term((t.factors[0], t.factors[0])) for t in terms]
                 out.append(({**params, "asymmetric": True}, [*terms, *sq]))
+        # Friction between two bodies whose positions are both outputs (a joint's bearing, a
+        # slipping clutch): the sign of their relative velocity (plugins/_bodies.py)
+        for pair in _bodies.output_pairs(ctx.train):
+            rel = y[:, list(ctx.train.outputs).index(pair[0])]
+            rel = rel - y[:, list(ctx.train.outputs).index(pair[1])]
+            for m in self.relative_spans:
+                if 4 * m >= min(e.n_samples for e in ctx.train.experiments):
+                    continue
+                vel = np.abs(_velocity(rel, m))
+                eps = float(np.quantile(vel, 0.02)) or float(np.max(vel)) * 1e-3 + 1e-12
+                term = Term((Factor(pair[0], fn="tanh", lag=1, diff=m, minus=pair[1],
+                                    scale=1.0 / eps),))  # fmt: skip
+                params = {
+                    "structure": "sign of relative velocity",
+                    "between": _bodies.label(pair),
+                    "velocity_span": m,
+                    "epsilon": [eps],
+                    "asymmetric": False,
+                }
+                out.append((params, [term]))
         # An output that is itself a speed (a tachometer, a flow): the friction force follows
         # the sign of the output, not of its difference.  Only for outputs that reverse (a
         # speed of one sign has no sign to follow).
@@ -244,7 +267,8 @@ class NonlinearStiffness(_TermEffect):
     cause = "nonlinear_stiffness"
     description = (
         "Nonlinear stiffness: adds odd powers y^3 (and y^5), or tanh(y/s), of every output: a "
-        "hardening or softening spring."
+        "hardening or softening spring; or the cube of the difference of two outputs: a "
+        "hardening coupling between two bodies."
     )
 
     def candidates(self, ctx: Context) -> list[tuple[dict[str, Any], list[Term]]]:
@@ -289,6 +313,18 @@ class NonlinearStiffness(_TermEffect):
                 for j, name in enumerate(ctx.train.outputs)
             ]
             outs.append(({"structure": "tanh", "scale_in_std": c}, terms))
+        # A spring between two bodies whose positions are both measured: the cube of their
+        # difference (plugins/_bodies.py), each pair alone and every pair together.
+        pairs = _bodies.output_pairs(ctx.train)
+        for pair in pairs:
+            term = _bodies.pair_term(pair, "pow", power=3)
+            outs.append(({"structure": "between two outputs", "between": _bodies.label(pair),
+                          "powers": [3]}, [term]))  # fmt: skip
+        if len(pairs) > 1:
+            terms = [_bodies.pair_term(pair, "pow", power=3) for pair in pairs]
+            between = [_bodies.label(pair) for pair in pairs]
+            outs.append(({"structure": "between two outputs", "between": between,
+                          "powers": [3]}, terms))  # fmt: skip
         return outs
 
     def signature(
@@ -648,7 +684,9 @@ class Hysteresis(_TermEffect):
         "Hysteresis: adds a hysteresis operator of every output — a Bouc-Wen state "
         "dh = dy - a|dy|h - b·dy|h| (a smooth loop, softening or hardening), a play of "
         "half-width w (elastic-perfectly-plastic) or plays of three widths with their own "
-        "weights (Prandtl-Ishlinskii) — whose memory the simulation carries."
+        "weights (Prandtl-Ishlinskii) — whose memory the simulation carries; or a Bouc-Wen "
+        "state or a play of the difference of two outputs (a hysteretic coupling between two "
+        "bodies)."
     )
     #: Bouc-Wen shapes ``a`` per unit of the output's standard deviation (``a = 1``: the
     #: loop's yield is reached after about one standard deviation of travel) and ``b / a``
@@ -657,6 +695,9 @@ class Hysteresis(_TermEffect):
     bouc_wen_ratio = (-1.5, -0.5, 0.5)
     #: Half-widths of a play, as fractions of the output's standard deviation.
     play_fractions = (0.05, 0.15, 0.4)
+    #: The Bouc-Wen shapes tried between two outputs.
+    between_a = (0.5, 2.0)
+    between_ratio = (-0.5, 0.5)
 
     def candidates(self, ctx: Context) -> list[tuple[dict[str, Any], list[Term]]]:
         y = ctx.train.y
@@ -685,6 +726,22 @@ class Hysteresis(_TermEffect):
         pi = [t for w in self.play_fractions for t in operator("play", w)]
         widths = list(self.play_fractions)
         outs.append(({"structure": "prandtl_ishlinskii", "half_widths_in_std": widths}, pi))
+        # A hysteretic coupling between two bodies whose positions are both outputs (a rubber
+        # mount, a tendon's sheath, a bolted joint that slips): the operator on the difference
+        # of the two outputs (plugins/_bodies.py); fewer Bouc-Wen shapes than above
+        for pair in _bodies.output_pairs(ctx.train):
+            between = {"between": _bodies.label(pair)}
+            outs += [
+                ({"structure": "bouc_wen", **between, "a": a, "b": a * r},
+                 [_bodies.pair_term(pair, "bouc_wen", param=a, param2=a * r)])
+                for a in self.between_a
+                for r in self.between_ratio
+            ]  # fmt: skip
+            outs += [
+                ({"structure": "play", **between, "half_width_in_std": w},
+                 [_bodies.pair_term(pair, "play", param=w)])
+                for w in self.play_fractions
+            ]  # fmt: skip
         return outs
 
     def signature(

@@ -2,7 +2,7 @@
 
 ARX with linear, bilinear (``u·y``) and general terms, state space with terms, sparse maps;
 random input and output blocks (delay, including fractional, dead zone, saturation, play,
-first-order lag, rate limit) and every factor function, lag and difference.  Used by the
+first-order lag, rate limit) and every factor function, lag, difference and relative factor.  Used by the
 compiled kernel's tests (tests/core/test_kernel.py) and the C FMU's (tests/fmu/test_c_fmu.py).
 """
 
@@ -19,11 +19,16 @@ KINDS = ("arx_linear", "arx_terms", "arx_bilinear", "ss_terms", "sparse_map")
 def _factor(rng: np.random.Generator, names: list[str], min_lag: dict[str, int]) -> Factor:
     name = str(rng.choice(names))
     fn = str(rng.choice(list(FUNCTIONS)))
+    # one factor in four relative to a second signal (between two bodies)
+    others = [n for n in names if n != name]
+    minus = str(rng.choice(others)) if others and rng.random() < 0.25 else ""
+    low = max(min_lag.get(name, 0), min_lag.get(minus, 0))
     return Factor(
         name,
         fn=fn,
+        minus=minus,
         power=int(rng.integers(1, 4)),
-        lag=int(rng.integers(min_lag.get(name, 0), 4)),
+        lag=int(rng.integers(low, 4)),
         diff=int(rng.choice([0, 0, 1, 2])),
         scale=float(rng.uniform(0.5, 2.0)),
         offset=float(rng.normal(0.0, 0.2)),

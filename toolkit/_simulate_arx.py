@@ -203,6 +203,7 @@ def _time_varying_part(
         # A hysteresis operator runs from the first simulated step, as in the kernel: general.
         if (
             term.stateful
+            or any(f.minus for f in term.factors)
             or len(outs) > 1
             or (
                 outs

@@ -84,7 +84,7 @@ def tied_terms(rep: ARX, outputs: Sequence[str]) -> list[tuple[int, int, int, fl
         if len(term.factors) != 1:
             continue
         f = term.factors[0]
-        if f.fn != "relu" or f.signal not in names or not 1 <= f.lag <= rep.na:
+        if f.fn != "relu" or f.minus or f.signal not in names or not 1 <= f.lag <= rep.na:
             continue
         j = names.index(f.signal)
         col = rep.A[f.lag - 1][:, j]

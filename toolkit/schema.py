@@ -430,7 +430,7 @@ def _term_signals(p: list[str], terms: tuple[Term, ...], allowed: set[str]) -> N
 
 def _past_outputs(p: list[str], terms: tuple[Term, ...], outputs: set[str]) -> None:
     for i, t in enumerate(terms):
-        if any(f.signal in outputs and f.lag < 1 for f in t.factors):
+        if any(s in outputs and f.lag < 1 for f in t.factors for s in f.signals):
             p.append(f"term {i} ({t.label}) must read outputs with lag >= 1 (no algebraic loop).")
 
 

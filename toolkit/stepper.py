@@ -513,8 +513,9 @@ def feedthrough(model: Model, initial: bool = False) -> dict[str, list[str]]:
         if rep.terms and coef is not None:
             for i, term in enumerate(rep.terms):
                 for f in term.factors:
-                    if f.signal in model.input_names and f.lag == 0:
-                        direct[:, model.input_names.index(f.signal)] |= coef[i] != 0
+                    for name in f.signals if f.lag == 0 else ():
+                        if name in model.input_names:
+                            direct[:, model.input_names.index(name)] |= coef[i] != 0
     out: dict[str, list[str]] = {}
     for j, y_name in enumerate(model.output_names):
         passes_out = _chain_passes(model.output_blocks, y_name, initial)

@@ -72,6 +72,11 @@ class Factor:
     diff : int
         0 for the signal itself; ``m >= 1`` for the difference over ``m`` samples,
         ``s[k-lag] - s[k-lag-m]`` (a velocity estimate that averages noise for larger ``m``).
+    minus : str
+        Empty for the signal itself; the name of a second signal ``r`` for the difference
+        ``s - r`` (with ``diff``: ``(s[k-lag] - s[k-lag-m]) - (r[k-lag] - r[k-lag-m])``) — a
+        coupling *between two bodies*: the stretch of the spring or the play between them, or
+        their relative velocity.
     scale, offset : float
         Affine normalisation applied before ``fn``.
     param : float
@@ -100,6 +105,7 @@ class Factor:
     offset: float = 0.0
     param: float = 0.0
     param2: float = 0.0
+    minus: str = ""
 
     @property
     def stateful(self) -> bool:
@@ -110,6 +116,9 @@ class Factor:
     def label(self) -> str:
         """Readable form, e.g. ``sin(x1)`` or ``u2[k-3]^2``."""
         name = self.signal if self.lag == 0 else f"{self.signal}[k-{self.lag}]"
+        if self.minus:
+            other = self.minus if self.lag == 0 else f"{self.minus}[k-{self.lag}]"
+            name = f"({name}-{other})"
         if self.diff:
             name = f"Δ{name}" if self.diff == 1 else f"Δ{self.diff}{name}"
         if self.scale != 1.0 or self.offset != 0.0:
@@ -131,10 +140,20 @@ class Factor:
         """Oldest sample this factor reads, in samples back from ``k``."""
         return self.lag + self.diff
 
+    @property
+    def signals(self) -> tuple[str, ...]:
+        """The signals this factor reads: its own, and the one it is taken relative to."""
+        return (self.signal, self.minus) if self.minus else (self.signal,)
+
     def _z(self, get: Getter) -> FloatArray:
         s = np.asarray(get(self.signal, self.lag), dtype=float)
         if self.diff:
             s = s - np.asarray(get(self.signal, self.lag + self.diff), dtype=float)
+        if self.minus:
+            r = np.asarray(get(self.minus, self.lag), dtype=float)
+            if self.diff:
+                r = r - np.asarray(get(self.minus, self.lag + self.diff), dtype=float)
+            s = s - r
         return (s - self.offset) * self.scale
 
     def value(self, z: FloatArray) -> FloatArray:
@@ -183,6 +202,7 @@ class Factor:
             ("offset", 0.0),
             ("param", 0.0),
             ("param2", 0.0),
+            ("minus", ""),
         ):
             val = getattr(self, key)
             if val != default:
@@ -227,7 +247,7 @@ class Term:
     @property
     def signals(self) -> set[str]:
         """Names of the signals this term reads."""
-        return {f.signal for f in self.factors}
+        return {s for f in self.factors for s in f.signals}
 
     @property
     def stateful(self) -> bool:
@@ -248,7 +268,8 @@ class Term:
         """Partial derivatives with respect to the current (lag 0, undifferenced) signals.
 
         Returns a mapping ``signal name -> dTerm/dsignal[k]``.  Factors on delayed signals are
-        constants here; a differenced factor depends on ``s[k]`` with derivative ``+1 * scale``.
+        constants here; a differenced factor depends on ``s[k]`` with derivative ``+1 * scale``,
+        a relative one on its ``minus`` signal with ``-1 * scale``.
         """
         values = [f.evaluate(get) for f in self.factors]
         grads: dict[str, FloatArray] = {}
@@ -261,7 +282,8 @@ class Term:
                 if j != i:
                     rest = rest * v
             g = np.asarray(dz * rest)
-            grads[f.signal] = grads[f.signal] + g if f.signal in grads else g
+            for name, gi in ((f.signal, g), (f.minus, -g)) if f.minus else ((f.signal, g),):
+                grads[name] = grads[name] + gi if name in grads else gi
         return grads
 
     def to_dict(self) -> dict[str, Any]:
@@ -277,7 +299,9 @@ def term_matrix(terms: Sequence[Term], get: Getter, n: int) -> FloatArray:
     return out
 
 
-_FACTOR_KEYS = {"signal", "fn", "power", "lag", "diff", "scale", "offset", "param", "param2"}
+_FACTOR_KEYS = {
+    "signal", "fn", "power", "lag", "diff", "scale", "offset", "param", "param2", "minus"
+}  # fmt: skip
 #: Bounds on a factor read from a file: lags as a delay's (100,000 samples), powers to 64.
 MAX_TERM_LAG = 100_000
 MAX_POWER = 64
@@ -302,6 +326,12 @@ def factor_from_dict(data: Any, where: str, problems: list[str]) -> Factor | Non
     signal = data.get("signal")
     if not isinstance(signal, str) or not signal:
         problems.append(f"{where}.signal: expected a signal name, found {signal!r}.")
+        ok = False
+    minus = data.get("minus", "")
+    if not isinstance(minus, str) or (minus and minus == signal):
+        problems.append(
+            f"{where}.minus: expected the name of another signal (or none), found {minus!r}."
+        )
         ok = False
     fn = data.get("fn", "pow")
     if not isinstance(fn, str) or fn not in FUNCTIONS:
@@ -336,7 +366,7 @@ def factor_from_dict(data: Any, where: str, problems: list[str]) -> Factor | Non
         ok = False
     if not ok:
         return None
-    return Factor(signal=signal, fn=fn, **ints, **floats)  # type: ignore[arg-type]
+    return Factor(signal=signal, fn=fn, minus=minus, **ints, **floats)  # type: ignore[arg-type]
 
 
 def term_from_dict(data: Any, where: str, problems: list[str]) -> Term | None:
@@ -367,9 +397,10 @@ class CompiledTerms:
         keys: set[tuple[str, int]] = set()
         for t in self.terms:
             for f in t.factors:
-                keys.add((f.signal, f.lag))
-                if f.diff:
-                    keys.add((f.signal, f.lag + f.diff))
+                for name in f.signals:
+                    keys.add((name, f.lag))
+                    if f.diff:
+                        keys.add((name, f.lag + f.diff))
         self.keys: tuple[tuple[str, int], ...] = tuple(sorted(keys, key=lambda k: (k[1], k[0])))
         index = {k: i for i, k in enumerate(self.keys)}
         nt = len(self.terms)
@@ -377,6 +408,10 @@ class CompiledTerms:
         self._cur = np.zeros((nt, mf), dtype=int)
         self._prev = np.zeros((nt, mf), dtype=int)
         self._hasdiff = np.zeros((nt, mf), dtype=bool)
+        #: the ``minus`` signal's keys (current and differenced), where a factor has one
+        self._cur2 = np.zeros((nt, mf), dtype=int)
+        self._prev2 = np.zeros((nt, mf), dtype=int)
+        self._hasminus = np.zeros((nt, mf), dtype=bool)
         self._active = np.zeros((nt, mf), dtype=bool)
         self._code = np.full((nt, mf), -1, dtype=int)
         self._power = np.ones((nt, mf))
@@ -390,6 +425,10 @@ class CompiledTerms:
                 if f.diff:
                     self._prev[i, j] = index[(f.signal, f.lag + f.diff)]
                     self._hasdiff[i, j] = True
+                if f.minus:
+                    self._cur2[i, j] = index[(f.minus, f.lag)]
+                    self._prev2[i, j] = index[(f.minus, f.lag + f.diff)]
+                    self._hasminus[i, j] = True
                 self._active[i, j] = True
                 self._code[i, j] = _FN_CODES[f.fn]
                 self._power[i, j] = f.power
@@ -463,9 +502,16 @@ class CompiledTerms:
         return len(self.terms)
 
     def _z(self, values: FloatArray) -> FloatArray:
+        # the compiled kernel's order of operations: (s - s_prev) - (r - r_prev), then the
+        # offset and the scale
         z = values[self._cur]
         if self._hasdiff.any():
             z = z - np.where(_expand(self._hasdiff, z), values[self._prev], 0.0)
+        if self._hasminus.any():
+            r = values[self._cur2]
+            if self._hasdiff.any():
+                r = r - np.where(_expand(self._hasdiff, r), values[self._prev2], 0.0)
+            z = z - np.where(_expand(self._hasminus, z), r, 0.0)
         return (z - _expand(self._offset, z)) * _expand(self._scale, z)
 
     def evaluate(self, values: FloatArray, commit: bool = True) -> FloatArray:
@@ -493,7 +539,7 @@ class CompiledTerms:
         """Derivatives of every term with respect to every key, shape ``(n_terms, n_keys, *batch)``.
 
         Differenced factors contribute ``+scale`` to their current key and ``-scale`` to their
-        previous one.  ``sign`` and the kinks of ``abs``, ``dead_zone``, ``sat`` and ``relu``
+        previous one; a relative factor (``minus``) the opposite to its second signal's keys.  ``sign`` and the kinks of ``abs``, ``dead_zone``, ``sat`` and ``relu``
         use their derivative almost everywhere.
         """
         values = np.asarray(values, dtype=float)
@@ -520,6 +566,10 @@ class CompiledTerms:
                 jac[r, self._cur[r, j]] += d[r]
                 if self._hasdiff[r, j]:
                     jac[r, self._prev[r, j]] -= d[r]
+                if self._hasminus[r, j]:
+                    jac[r, self._cur2[r, j]] -= d[r]
+                    if self._hasdiff[r, j]:
+                        jac[r, self._prev2[r, j]] += d[r]
         return jac
 
 
@@ -631,12 +681,26 @@ def scalar_evaluator(ct: CompiledTerms) -> Callable[..., list[float]]:
         factors = []
         for j, f in enumerate(t.factors):
             prev = int(ct._prev[i, j]) if ct._hasdiff[i, j] else -1
+            cur2 = int(ct._cur2[i, j]) if ct._hasminus[i, j] else -1
+            prev2 = int(ct._prev2[i, j]) if ct._hasminus[i, j] and ct._hasdiff[i, j] else -1
             mem = -1
             if f.stateful:
                 mem, slot = slot, slot + 1
                 where.append((i, j))
             factors.append(
-                (int(ct._cur[i, j]), prev, f.fn, f.power, f.scale, f.offset, f.param, f.param2, mem)
+                (
+                    int(ct._cur[i, j]),
+                    prev,
+                    cur2,
+                    prev2,
+                    f.fn,
+                    f.power,
+                    f.scale,
+                    f.offset,
+                    f.param,
+                    f.param2,
+                    mem,
+                )
             )
         spec.append(tuple(factors))
 
@@ -666,8 +730,10 @@ def scalar_evaluator(ct: CompiledTerms) -> Callable[..., list[float]]:
         out = []
         for factors in spec:
             prod = 1.0
-            for cur, prev, fn, power, scale, offset, param, param2, mem in factors:
+            for cur, prev, cur2, prev2, fn, power, scale, offset, param, param2, mem in factors:
                 z = v[cur] - v[prev] if prev >= 0 else v[cur]
+                if cur2 >= 0:
+                    z = z - (v[cur2] - v[prev2] if prev2 >= 0 else v[cur2])
                 if mem >= 0:
                     st = ct.state[where[mem]]
                     val, _, new = _step_stateful(fn, (z - offset) * scale, st, param, param2)

@@ -135,7 +135,7 @@ int tk_load(tk_model *m, const char *path, char *why, size_t nwhy) {
     /* every array below must be far from int and memory limits: a resource asking for more
      * is corrupt (this also keeps the int offsets of the state layout from overflowing) */
     if ((double)m->H * (m->nu + m->ny + m->nx) + (double)m->nx * (m->nx + m->nu + m->nt) +
-            (double)m->ny * (m->nx + m->nu) + 12.0 * m->nf + (double)m->nt * (m->ny + 1) >
+            (double)m->ny * (m->nx + m->nu) + 14.0 * m->nf + (double)m->nt * (m->ny + 1) >
         MAX_VALUES)
         goto bad;
 
@@ -148,7 +148,7 @@ int tk_load(tk_model *m, const char *path, char *why, size_t nwhy) {
     m->store = (double *)calloc(need + 1, sizeof(double));
     m->bi = (tk_block *)calloc((size_t)m->nbi + 1, sizeof(tk_block));
     m->bo = (tk_block *)calloc((size_t)m->nbo + 1, sizeof(tk_block));
-    m->ptr = (int *)calloc((size_t)nt1 + 6 * (size_t)m->nf + (size_t)m->ny + 1, sizeof(int));
+    m->ptr = (int *)calloc((size_t)nt1 + 8 * (size_t)m->nf + (size_t)m->ny + 1, sizeof(int));
     if (!m->store || !m->bi || !m->bo || !m->ptr) {
         free(raw);
         tk_free(m);
@@ -182,6 +182,8 @@ int tk_load(tk_model *m, const char *path, char *why, size_t nwhy) {
         m->col = q; q += m->nf;
         m->flag = q; q += m->nf;
         m->fdiff = q; q += m->nf;
+        m->src2 = q; q += m->nf;
+        m->col2 = q; q += m->nf;
         m->code = q; q += m->nf;
         q += m->nf;
         m->outst = q;
@@ -200,6 +202,8 @@ int tk_load(tk_model *m, const char *path, char *why, size_t nwhy) {
         m->col[k] = next_int(&r, 0, LIMIT);
         m->flag[k] = next_int(&r, 0, m->lag);
         m->fdiff[k] = next_int(&r, 0, m->lag);
+        m->src2[k] = next_int(&r, -1, 1);
+        m->col2[k] = next_int(&r, 0, LIMIT);
         m->code[k] = next_int(&r, 0, 10);
         m->power[k] = next(&r);
         m->scale[k] = next(&r);
@@ -251,6 +255,12 @@ int tk_load(tk_model *m, const char *path, char *why, size_t nwhy) {
         else ncols = m->src[k] == 0 ? m->nu : m->ny;
         if (m->col[k] >= ncols) r.bad = 1;
         if (m->rep == 1 && m->src[k] == 1 && m->flag[k] < 1) r.bad = 1;
+        if (m->src2[k] >= 0) { /* the minus signal of a relative factor: the same checks */
+            if (m->rep == 2) ncols = m->src2[k] == 0 ? m->nx : m->nu;
+            else ncols = m->src2[k] == 0 ? m->nu : m->ny;
+            if (m->col2[k] >= ncols) r.bad = 1;
+            if (m->rep == 1 && m->src2[k] == 1 && m->flag[k] < 1) r.bad = 1;
+        }
     }
     if (r.bad) goto bad;
     free(raw);
@@ -499,15 +509,14 @@ static double fn(int code, double z, double power, double param) {
 }
 
 /* The value of one factor's signal `back` samples before the current one (see reads below). */
-static double read(tk_model *m, int f, int back, const double *ub) {
-    int c = m->col[f];
+static double read(tk_model *m, int src, int c, int back, const double *ub) {
     if (m->rep == 1) { /* ARX: the current input, or committed samples (newest = 1 back) */
-        if (m->src[f] == 0) return back == 0 ? ub[c] : hist(m, m->s_uh, m->nu, back - 1)[c];
+        if (src == 0) return back == 0 ? ub[c] : hist(m, m->s_uh, m->nu, back - 1)[c];
         return hist(m, m->s_yh, m->ny, back - 1)[c];
     }
     if (m->rep == 2) /* sparse map: states or inputs, the current sample already pushed */
-        return m->src[f] == 0 ? hist(m, m->s_xh, m->nx, back)[c] : hist(m, m->s_uh, m->nu, back)[c];
-    return m->src[f] == 0 ? hist(m, m->s_uh, m->nu, back)[c] : hist(m, m->s_yh, m->ny, back)[c];
+        return src == 0 ? hist(m, m->s_xh, m->nx, back)[c] : hist(m, m->s_uh, m->nu, back)[c];
+    return src == 0 ? hist(m, m->s_uh, m->nu, back)[c] : hist(m, m->s_yh, m->ny, back)[c];
 }
 
 /* One step of a hysteresis operator (code 9 play, 10 Bouc-Wen; tendonkit.terms._step_stateful)
@@ -534,8 +543,13 @@ static void terms(tk_model *m, const double *ub, int commit) {
     for (t = 0; t < m->nt; t++) {
         double prod = 1.0;
         for (f = m->ptr[t]; f < m->ptr[t + 1]; f++) {
-            double z = read(m, f, m->flag[f], ub);
-            if (m->fdiff[f]) z = z - read(m, f, m->flag[f] + m->fdiff[f], ub);
+            double z = read(m, m->src[f], m->col[f], m->flag[f], ub);
+            if (m->fdiff[f]) z = z - read(m, m->src[f], m->col[f], m->flag[f] + m->fdiff[f], ub);
+            if (m->src2[f] >= 0) { /* relative to a second signal (tendonkit.terms.Factor.minus) */
+                double q = read(m, m->src2[f], m->col2[f], m->flag[f], ub);
+                if (m->fdiff[f]) q = q - read(m, m->src2[f], m->col2[f], m->flag[f] + m->fdiff[f], ub);
+                z = z - q;
+            }
             z = (z - m->offset[f]) * m->scale[f];
             if (m->code[f] >= 9)
                 prod *= memory(m->code[f], z, m->param[f], m->param2[f], m->S + m->s_fs + 2 * f,

@@ -408,15 +408,17 @@ def test_nonlinear_mpc_is_offset_free():
 
 
 def _lagged_map() -> Model:
-    """A map with a lagged state, a differenced input and a delayed input (block)."""
+    """A map with a lagged state, a differenced input, a delayed input (block) and a term of the
+    difference of an input and the state (between two bodies)."""
     terms = (
         Term((Factor("x"),)),
         Term((Factor("x", lag=1),)),
         Term((Factor("u", fn="tanh", scale=0.1), Factor("x", fn="cos"))),
         Term((Factor("v", diff=1), Factor("x", fn="sin"))),
         Term(()),
+        Term((Factor("v", fn="tanh", minus="x", lag=1, scale=2.0),)),
     )
-    coef = np.array([[1.2], [-0.35], [0.08], [0.01], [0.005]])
+    coef = np.array([[1.2], [-0.35], [0.08], [0.01], [0.005], [0.02]])
     return Model(
         name="lagged",
         dt=0.03,
@@ -426,6 +428,18 @@ def _lagged_map() -> Model:
         representation=SparseMap(terms=terms, coefficients=coef, output_states=(0,)),
         input_blocks=(Block("delay", "u", {"samples": 2.0}),),
     )
+
+
+def test_a_difference_of_signals_behind_different_delays_is_refused():
+    """The rollout reads each factor at one lag: ``u - v`` with ``u`` delayed and ``v`` not
+    cannot be read so, and is refused with a message that names the term."""
+    model = _lagged_map()
+    rep = model.representation
+    terms = (*rep.terms, Term((Factor("u", minus="v", fn="sat", param=0.5),)))
+    coef = np.vstack([rep.coefficients, [[0.01]]])
+    bad = model.replace(representation=replace(rep, terms=terms, coefficients=coef))
+    with pytest.raises(OptionError, match=r"sat\(\(u-v\);0.5\).*different input delays"):
+        SparseMapDynamics(bad)
 
 
 def test_sparse_map_dynamics_match_simulation_and_jacobians_are_exact():

@@ -19,6 +19,10 @@ def _terms() -> list[Term]:
         Term((Factor("x", fn="tanh", diff=1, scale=5.0),)),
         Term((Factor("x", fn="relu", param=0.1), Factor("u", power=3))),
         Term((Factor("x", fn="abs"),)),
+        # between two bodies: the play of a coupling, a cubic spring, a relative velocity
+        Term((Factor("x", fn="dead_zone", param=0.1, minus="u", lag=1),)),
+        Term((Factor("u", power=3, minus="x"),)),
+        Term((Factor("x", fn="tanh", diff=2, minus="u", scale=3.0), Factor("u"))),
     ]
 
 
@@ -44,6 +48,35 @@ def test_jacobian_matches_finite_differences():
         fd = (ct.evaluate(vals + dv) - ct.evaluate(vals - dv)) / (2 * h)
         # kinks (sign, abs, dead zone, sat, relu) are measure-zero; random points avoid them
         np.testing.assert_allclose(jac[:, i], fd, atol=1e-6)
+
+
+def test_a_relative_factor_reads_the_difference_of_two_signals():
+    """``minus``: the stretch (or the relative velocity) between two bodies; file round trip,
+    label, the signals it reads, and a factor relative to itself refused."""
+    from tendonkit.terms import term_from_dict
+
+    rng = np.random.default_rng(3)
+    sig = {"x": rng.normal(size=30), "u": rng.normal(size=30)}
+    get = series_getter(sig)
+    f = Factor("x", fn="dead_zone", param=0.2, minus="u", lag=1, diff=1, scale=2.0, offset=0.1)
+    x1, u1 = get("x", 1), get("u", 1)
+    z = ((x1 - get("x", 2)) - (u1 - get("u", 2)) - 0.1) * 2.0
+    np.testing.assert_array_equal(f.evaluate(get), np.sign(z) * np.maximum(np.abs(z) - 0.2, 0))
+    term = Term((f,))
+    assert term.signals == {"x", "u"} and term.max_lag == 2
+    assert Term((Factor("q1", power=3, minus="q2", lag=1),)).label == "(q1[k-1]-q2[k-1])^3"
+    problems: list[str] = []
+    back = term_from_dict(term.to_dict(), "t", problems)
+    assert back == term and not problems and term.to_dict()["factors"][0]["minus"] == "u"
+    assert "minus" not in Term((Factor("x"),)).to_dict()["factors"][0]
+    for bad in ("x", 3):
+        problems = []
+        assert term_from_dict({"factors": [{"signal": "x", "minus": bad}]}, "t", problems) is None
+        assert problems and "minus" in problems[0]
+    # the gradient with respect to the current samples: +scale on x, -scale on u
+    g = Term((Factor("x", power=3, minus="u"),)).gradient(get)
+    np.testing.assert_allclose(g["u"], -g["x"])
+    np.testing.assert_allclose(g["x"], 3 * (sig["x"] - sig["u"]) ** 2)
 
 
 def test_labels_are_readable():

@@ -180,7 +180,14 @@ def shift_term(term: Term, rename: dict[str, str] | None = None) -> Term:
     for f in term.factors:
         if f.lag < 1:
             raise SchemaError(f"term {term.label}: extension terms must read lag >= 1.")
-        factors.append(dataclasses.replace(f, signal=rename.get(f.signal, f.signal), lag=f.lag - 1))
+        factors.append(
+            dataclasses.replace(
+                f,
+                signal=rename.get(f.signal, f.signal),
+                minus=rename.get(f.minus, f.minus),
+                lag=f.lag - 1,
+            )
+        )
     return Term(tuple(factors))
 
 

@@ -77,6 +77,18 @@ class SparseMapDynamics:
                 f"{model.name!r} has hysteresis terms (play, bouc_wen); the nonlinear MPC "
                 "linearises memoryless terms only."
             )
+        uneven = [
+            f.label
+            for t in rep.terms
+            for f in t.factors
+            if f.minus and delay.get(f.signal, 0) != delay.get(f.minus, 0)
+        ]
+        if uneven:
+            raise OptionError(
+                f"{model.name!r}: the terms {', '.join(uneven)} take the difference of two "
+                "signals behind different input delays; the nonlinear MPC's rollout reads "
+                "each factor at one lag."
+            )
         self.coef_T = np.asarray(rep.coefficients, dtype=float).T  # (nx, n_terms)
         nx, nu = len(states), len(inputs)
         lx = max((lag for name, lag in self.terms.keys if name not in delay), default=0)

@@ -4,7 +4,9 @@ A coupling between two bodies — a spring, a gear mesh, a loose joint — exert
 depends on their *relative* position (or velocity), and acts on both with opposite signs.
 When both positions are measured (a chain of masses, two joints, a motor and its load), the
 coupling's nonlinearity is a function of ``y_i - y_j``, not of either output alone: a hardening
-coupling ``k (d + α d³)``, a play (a spring with a gap, ``k·dead_zone(d, b)``) in the coupling.
+coupling ``k (d + α d³)``, a gap (a spring with play, ``k·dead_zone(d, b) = k·d − k·sat(d, b)``:
+the linear part is the baseline's, so the term is ``sat``), a slipping joint, a hysteretic
+mount.
 Every effect that models a force of the outputs tries it on every pair of outputs
 (:func:`output_pairs`); the term reads both outputs one sample back
 (:class:`tendonkit.terms.Factor` with ``minus``) and enters every output's equation with its
@@ -18,7 +20,7 @@ serve any units.
 from __future__ import annotations
 
 from itertools import combinations
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -26,9 +28,35 @@ from tendonkit.dataset import Dataset
 from tendonkit.terms import Factor, Term
 
 
-def output_pairs(data: Dataset) -> list[tuple[str, str, float, float]]:
-    """Every pair of outputs ``(a, b, mean, std)`` with the mean and spread of ``a - b`` over
-    the record; pairs whose difference does not move are left out."""
+class Pair(NamedTuple):
+    """Two outputs ``a``, ``b`` and the mean and spread of ``a - b`` over the record."""
+
+    a: str
+    b: str
+    mean: float
+    std: float
+    #: whether ``a - b`` takes both signs (more than 5 % of the samples each)
+    crosses_zero: bool
+
+    @property
+    def label(self) -> str:
+        """``"y1-y2"``."""
+        return f"{self.a}-{self.b}"
+
+    def centres(self) -> dict[str, float]:
+        """Where a coupling's curve is centred: at the mean of the difference, and at zero
+        too when the difference crosses zero away from its mean (a static load twists a shaft
+        off the sensors' zero, while its gap and its spring stay centred there; a cube about
+        the mean is not odd about zero)."""
+        out = {"mean": self.mean}
+        if self.crosses_zero and abs(self.mean) > 0.1 * self.std:
+            out["zero"] = 0.0
+        return out
+
+
+def output_pairs(data: Dataset) -> list[Pair]:
+    """Every pair of outputs with the mean and spread of their difference over the record;
+    pairs whose difference does not move are left out."""
     y = data.y
     names = list(data.outputs)
     out = []
@@ -36,16 +64,13 @@ def output_pairs(data: Dataset) -> list[tuple[str, str, float, float]]:
         d = y[:, i] - y[:, j]
         sd = float(d.std())
         if sd > 0 and np.isfinite(sd):
-            out.append((names[i], names[j], float(d.mean()), sd))
+            crosses = bool(np.mean(d > 0) > 0.05 and np.mean(d < 0) > 0.05)
+            out.append(Pair(names[i], names[j], float(d.mean()), sd, crosses))
     return out
 
 
-def pair_term(pair: tuple[str, str, float, float], fn: str, **kw: Any) -> Term:
-    """One term ``fn((y_a[k-1] - y_b[k-1] - mean) / std)``."""
-    a, b, mean, sd = pair
-    return Term((Factor(a, fn=fn, minus=b, lag=1, scale=1.0 / sd, offset=mean, **kw),))
-
-
-def label(pair: tuple[str, str, float, float]) -> str:
-    """``"y1-y2"``."""
-    return f"{pair[0]}-{pair[1]}"
+def pair_term(pair: Pair, fn: str, centre: float | None = None, **kw: Any) -> Term:
+    """One term ``fn((y_a[k-1] - y_b[k-1] - centre) / std)``, centred at the mean by default."""
+    offset = pair.mean if centre is None else centre
+    return Term((Factor(pair.a, fn=fn, minus=pair.b, lag=1, scale=1.0 / pair.std,
+                        offset=offset, **kw),))  # fmt: skip

@@ -661,25 +661,33 @@ class Backlash:
         return _select_and_finish(ctx, self, cands)
 
     def _between(self, ctx: Context) -> list[tuple[dict[str, Any], Callable[[Dataset], Model]]]:
-        """A gap in a coupling between two bodies whose positions are both outputs: the
-        coupling's force ``k·dead_zone(y_a - y_b, w)`` (plugins/_bodies.py) on every pair, each
-        pair alone and every pair together."""
+        """A gap in a coupling between two bodies whose positions are both outputs, on every
+        pair (plugins/_bodies.py), each pair alone and every pair together: the coupling's
+        force ``k·dead_zone(d, w) = k·d − k·sat(d, w)``, ``d = y_a − y_b``, whose linear part
+        is the baseline's, so the term is ``sat(d, w)`` (a narrow gap's dead zone is almost
+        ``d`` itself, a regressor too close to the outputs for a re-identified N4SID
+        baseline).  Centred at the difference's mean, and at zero too where a static load
+        moves the mean off it (:meth:`Pair.centres`)."""
         pairs = _bodies.output_pairs(ctx.train)
-        groups = [[p] for p in pairs] + ([pairs] if len(pairs) > 1 else [])
+        groups = [[(p, "mean", p.mean)] for p in pairs]
+        groups += [[(p, "zero", 0.0)] for p in pairs if "zero" in p.centres()]
+        if len(pairs) > 1:
+            groups.append([(p, "mean", p.mean) for p in pairs])
         cands: list[tuple[dict[str, Any], Callable[[Dataset], Model]]] = []
         for group in groups:
             for frac in self.between_fractions:
-                terms = [_bodies.pair_term(p, "sat", param=frac) for p in group]
+                terms = [_bodies.pair_term(p, "sat", centre=c, param=frac) for p, _, c in group]
 
                 def build(data: Dataset, terms: list[Term] = terms) -> Model:
                     return extend_with_terms(ctx.baseline, data, terms, refit=ctx.refit)
 
-                between = [_bodies.label(p) for p in group]
+                between = [p.label for p, _, _ in group]
                 params = {
                     "where": "between two outputs",
                     "between": between[0] if len(group) == 1 else between,
+                    "about": group[0][1],
                     "fraction_of_std": frac,
-                    "width": [frac * p[3] for p in group],
+                    "width": [frac * p.std for p, _, _ in group],
                     "terms": [t.label for t in terms],
                 }
                 cands.append((params, build))

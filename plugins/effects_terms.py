@@ -201,18 +201,18 @@ class CoulombFriction(_TermEffect):
         # Friction between two bodies whose positions are both outputs (a joint's bearing, a
         # slipping clutch): the sign of their relative velocity (plugins/_bodies.py)
         for pair in _bodies.output_pairs(ctx.train):
-            rel = y[:, list(ctx.train.outputs).index(pair[0])]
-            rel = rel - y[:, list(ctx.train.outputs).index(pair[1])]
+            rel = y[:, list(ctx.train.outputs).index(pair.a)]
+            rel = rel - y[:, list(ctx.train.outputs).index(pair.b)]
             for m in self.relative_spans:
                 if 4 * m >= min(e.n_samples for e in ctx.train.experiments):
                     continue
                 vel = np.abs(_velocity(rel, m))
                 eps = float(np.quantile(vel, 0.02)) or float(np.max(vel)) * 1e-3 + 1e-12
-                term = Term((Factor(pair[0], fn="tanh", lag=1, diff=m, minus=pair[1],
+                term = Term((Factor(pair.a, fn="tanh", lag=1, diff=m, minus=pair.b,
                                     scale=1.0 / eps),))  # fmt: skip
                 params = {
                     "structure": "sign of relative velocity",
-                    "between": _bodies.label(pair),
+                    "between": pair.label,
                     "velocity_span": m,
                     "epsilon": [eps],
                     "asymmetric": False,
@@ -317,14 +317,15 @@ class NonlinearStiffness(_TermEffect):
         # difference (plugins/_bodies.py), each pair alone and every pair together.
         pairs = _bodies.output_pairs(ctx.train)
         for pair in pairs:
-            term = _bodies.pair_term(pair, "pow", power=3)
-            outs.append(({"structure": "between two outputs", "between": _bodies.label(pair),
-                          "powers": [3]}, [term]))  # fmt: skip
+            for about, centre in pair.centres().items():
+                term = _bodies.pair_term(pair, "pow", centre=centre, power=3)
+                outs.append(({"structure": "between two outputs", "between": pair.label,
+                              "powers": [3], "about": about}, [term]))  # fmt: skip
         if len(pairs) > 1:
             terms = [_bodies.pair_term(pair, "pow", power=3) for pair in pairs]
-            between = [_bodies.label(pair) for pair in pairs]
+            between = [pair.label for pair in pairs]
             outs.append(({"structure": "between two outputs", "between": between,
-                          "powers": [3]}, terms))  # fmt: skip
+                          "powers": [3], "about": "mean"}, terms))  # fmt: skip
         return outs
 
     def signature(
@@ -730,7 +731,7 @@ class Hysteresis(_TermEffect):
         # mount, a tendon's sheath, a bolted joint that slips): the operator on the difference
         # of the two outputs (plugins/_bodies.py); fewer Bouc-Wen shapes than above
         for pair in _bodies.output_pairs(ctx.train):
-            between = {"between": _bodies.label(pair)}
+            between = {"between": pair.label}
             outs += [
                 ({"structure": "bouc_wen", **between, "a": a, "b": a * r},
                  [_bodies.pair_term(pair, "bouc_wen", param=a, param2=a * r)])

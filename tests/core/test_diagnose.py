@@ -991,6 +991,19 @@ def test_a_candidate_that_reshapes_a_named_cause_is_left_out_of_the_choice():
     assert not reshapes("saturation", {"where": "inputs"}, "dead_zone", {})  # two kinds
     assert not reshapes("static_nonlinearity", {}, "dead_zone", {})  # unknown structure: kept
     assert reshaping_paths("backlash", {}) == frozenset()
+    # between two bodies the path is the pair: friction in one coupling is not a reshape of a
+    # hysteresis of the outputs, nor of a hysteresis in another coupling; in the same one it is
+    rel = {"structure": "sign of relative velocity", "between": "y2-y3"}
+    assert not reshapes("coulomb_friction", rel, "hysteresis", {"structure": "bouc_wen"})
+    assert not reshapes(
+        "coulomb_friction", rel, "hysteresis", {"structure": "play", "between": "y1-y2"}
+    )
+    assert reshapes(
+        "coulomb_friction", rel, "hysteresis", {"structure": "play", "between": "y2-y3"}
+    )
+    assert not reshapes(
+        "hysteresis", {"between": "y1-y2"}, "coulomb_friction", {"structure": "sign of velocity"}
+    )
 
     from tendonkit import identify
     from tendonkit.diagnose import Context

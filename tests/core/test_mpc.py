@@ -26,7 +26,7 @@ from tendonkit.mpc import (
     Weights,
 )
 from tendonkit.mpc.examples import tendon_sparse_map, two_mode_model
-from tendonkit.mpc.nonlinear import SparseMapDynamics
+from tendonkit.mpc.nonlinear import SparseMapDynamics, nonlinear_problems
 from tendonkit.realize import to_state_space
 from tendonkit.schema import ARX, Block, Model, Signal, SparseMap, StateSpace
 from tendonkit.simulate import simulate
@@ -440,6 +440,8 @@ def test_a_difference_of_signals_behind_different_delays_is_refused():
     bad = model.replace(representation=replace(rep, terms=terms, coefficients=coef))
     with pytest.raises(OptionError, match=r"sat\(\(u-v\);0.5\).*different input delays"):
         SparseMapDynamics(bad)
+    assert any("sat((u-v);0.5)" in p for p in nonlinear_problems(bad))
+    assert not nonlinear_problems(model)
 
 
 def test_sparse_map_dynamics_match_simulation_and_jacobians_are_exact():

@@ -99,8 +99,14 @@ def reshaping_paths(cause: str, params: dict[str, Any]) -> frozenset[str]:
     """Where an extension of ``cause`` acts, for the causes :data:`RESHAPING` relates: a curve
     on the ``"inputs"`` or the ``"outputs"``, or a ``"force on the outputs"`` (hysteresis, and
     friction by the sign of the output's velocity or of a speed output; a friction played in
-    force space acts on the inputs).  Empty for any other cause or an unknown structure."""
+    force space acts on the inputs), or a ``"force between <outputs>"`` for the same two
+    causes between two bodies (plugins/_bodies.py: their path is the pair, not each output).
+    Empty for any other cause or an unknown structure."""
     structure = str(params.get("structure"))
+    between = params.get("between")
+    if between and cause in ("hysteresis", "coulomb_friction"):
+        # a force between two bodies (the difference of two outputs), not on each output
+        return frozenset({f"force between {between}"})
     if cause == "static_nonlinearity":
         return {
             "Hammerstein": frozenset({"inputs"}),

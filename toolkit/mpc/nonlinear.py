@@ -50,7 +50,28 @@ def nonlinear_problems(model: Model) -> list[str]:
             )
     for b in model.output_blocks:
         problems.append(f"output block {b.kind!r} on {b.signal!r} is not supported by the MPC.")
+    uneven = _uneven_differences(model)
+    if uneven:
+        problems.append(
+            f"the factors {', '.join(uneven)} take the difference of two signals behind "
+            "different input delays; the nonlinear MPC's rollout reads each factor at one lag."
+        )
     return problems
+
+
+def _uneven_differences(model: Model) -> list[str]:
+    """Labels of the factors (``minus``) whose two signals have different input delays."""
+    delay: dict[str, float] = {}
+    for b in model.input_blocks:
+        if b.kind == "delay":
+            delay[b.signal] = delay.get(b.signal, 0.0) + float(b.params["samples"])
+    terms = getattr(model.representation, "terms", ()) or ()
+    return [
+        f.label
+        for t in terms
+        for f in t.factors
+        if f.minus and delay.get(f.signal, 0.0) != delay.get(f.minus, 0.0)
+    ]
 
 
 class SparseMapDynamics:
@@ -77,15 +98,10 @@ class SparseMapDynamics:
                 f"{model.name!r} has hysteresis terms (play, bouc_wen); the nonlinear MPC "
                 "linearises memoryless terms only."
             )
-        uneven = [
-            f.label
-            for t in rep.terms
-            for f in t.factors
-            if f.minus and delay.get(f.signal, 0) != delay.get(f.minus, 0)
-        ]
+        uneven = _uneven_differences(model)
         if uneven:
             raise OptionError(
-                f"{model.name!r}: the terms {', '.join(uneven)} take the difference of two "
+                f"{model.name!r}: the factors {', '.join(uneven)} take the difference of two "
                 "signals behind different input delays; the nonlinear MPC's rollout reads "
                 "each factor at one lag."
             )

@@ -1055,3 +1055,40 @@ def test_a_later_cause_is_confirmed_where_its_evidence_is_the_free_run():
     worse = model.replace(representation=dataclasses.replace(rep, B=tuple(0.8 * b for b in rep.B)))
     better = confirm_step(worse, model, valid)
     assert better["p_value"] < 1e-3 and better["fit_after"] > better["fit_before"] + 1.0
+
+
+def test_a_state_space_extension_identified_around_an_operating_point_keeps_its_terms():
+    """A state-space baseline re-identified with the terms as extra inputs by an identifier that
+    removes the means (N4SID ``offset=True``, the fallback of signals measured away from zero):
+    the terms' operating point is a constant state input, moved into the output's operating
+    point, so the extension fits as it does on the same data without offsets (before, the
+    extension fell back to keeping the baseline's A and C, far worse on a Duffing system)."""
+    from tendonkit import identifiers
+    from tendonkit.diagnose.extend import extend_with_terms
+    from tendonkit.metrics import fit
+    from tendonkit.schema import StateSpace
+    from tendonkit.simulate import simulate
+    from tendonkit.terms import Factor, Term
+
+    rng = np.random.default_rng(5)
+    n = 3000
+    u = rng.normal(size=n)
+    y = np.zeros(n)
+    for k in range(2, n):
+        y[k] = 1.6 * y[k - 1] - 0.7 * y[k - 2] + 0.1 * u[k - 1] - 2.0 * y[k - 1] ** 3
+    y += 0.01 * y.std() * rng.normal(size=n)
+    fits = {}
+    for shift in (0.0, 3.0):
+        data = Dataset.from_arrays(
+            (u + 2 * shift)[:, None], (y + shift)[:, None], dt=0.01, inputs=["f"], outputs=["x"]
+        )
+        ident = identifiers().get("n4sid").create(order=2, offset=bool(shift))
+        base = ident.identify(data)
+        cube = [Term((Factor("x", power=3, lag=1, offset=shift),))]
+        ext = extend_with_terms(base, data, cube, refit=ident.identify)
+        rep = ext.representation
+        assert isinstance(rep, StateSpace) and rep.E is not None and rep.terms
+        assert not np.allclose(rep.A, base.representation.A)  # re-identified, not kept
+        e = data.experiments[0]
+        fits[shift] = float(fit(e.y, simulate(ext, e.u, y=e.y, initial="estimate"))[0])
+    assert fits[0.0] > 95.0 and abs(fits[3.0] - fits[0.0]) < 1.0, fits

@@ -104,9 +104,18 @@ def _extend_ss_by_refit(
     frep = fitted.representation
     if not isinstance(frep, StateSpace) or frep.terms:
         return _extend_ss(model, rep, data, terms)
+    y0 = frep.y0
     if frep.u0 is not None and np.any(frep.u0[nu:] != 0):
-        # an offset on Θ is a constant state bias this form has no place for
-        return _extend_ss(model, rep, data, terms)
+        # An operating point of Θ (an identifier that removes the means) is a constant state
+        # input b = -E θ0: with x' = x - (I - A)⁻¹ b the model is x'⁺ = A x' + B(u - u0) + Eθ,
+        # y = C x' + D(u - u0) + y0 + C (I - A)⁻¹ b, the same outputs (the initial state is
+        # estimated), so b moves into the output's operating point.
+        E = frep.B[:, nu:]
+        try:
+            shift = np.linalg.solve(np.eye(frep.A.shape[0]) - frep.A, -E @ frep.u0[nu:])
+        except np.linalg.LinAlgError:  # an integrator: no steady state to move b to
+            return _extend_ss(model, rep, data, terms)
+        y0 = (np.zeros(frep.C.shape[0]) if y0 is None else y0) + frep.C @ shift
     return model.replace(
         representation=StateSpace(
             A=frep.A,
@@ -118,7 +127,7 @@ def _extend_ss_by_refit(
             terms=all_terms,
             E=frep.B[:, nu:].copy(),
             u0=None if frep.u0 is None else frep.u0[:nu].copy(),
-            y0=frep.y0,
+            y0=y0,
         )
     )
 

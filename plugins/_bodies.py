@@ -15,6 +15,10 @@ own coefficient, so the data say which bodies it pushes and how hard.
 A linear term in ``d`` is in the baseline already (its output lags); only the nonlinear part
 is new.  Normalised by the difference's own mean and spread, so the same fractions of a spread
 serve any units.
+
+With ``n`` outputs there are ``n(n−1)/2`` pairs and every effect tries each: beyond
+:data:`MAX_PAIRS` (four outputs), only the pairs whose difference the baseline's training
+residuals follow most closely are tried (:func:`screened_pairs`).
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from tendonkit.dataset import Dataset
+from tendonkit.diagnose import Context
 from tendonkit.terms import Factor, Term
 
 
@@ -74,3 +79,45 @@ def pair_term(pair: Pair, fn: str, centre: float | None = None, **kw: Any) -> Te
     offset = pair.mean if centre is None else centre
     return Term((Factor(pair.a, fn=fn, minus=pair.b, lag=1, scale=1.0 / pair.std,
                         offset=offset, **kw),))  # fmt: skip
+
+
+#: Most pairs of outputs an effect tries (every pair of four outputs); more are screened.
+MAX_PAIRS = 6
+
+
+def _probes(d: np.ndarray) -> list[np.ndarray]:
+    """Nonlinear functions of a difference that a coupling's force follows — its cube, a gap's
+    ``sat``, the sign of its velocity — each without its part along ``1`` and ``d``."""
+    z = (d - d.mean()) / (d.std() or 1.0)
+    vel = np.zeros_like(z)
+    vel[3:] = z[3:] - z[:-3]
+    basis = np.column_stack([np.ones_like(z), z])
+    out = []
+    for p in (z**3, np.clip(z, -0.1, 0.1), np.sign(vel)):
+        p = p - basis @ np.linalg.lstsq(basis, p, rcond=None)[0]
+        out.append(p / (np.linalg.norm(p) or 1.0))
+    return out
+
+
+def screened_pairs(ctx: Context) -> list[Pair]:
+    """:func:`output_pairs` of the training data; beyond :data:`MAX_PAIRS`, the pairs whose
+    probes (:func:`_probes`) the baseline's free-run training residual of any output follows
+    most closely (largest absolute correlation), in the pairs' order."""
+    pairs = output_pairs(ctx.train)
+    if len(pairs) <= MAX_PAIRS:
+        return pairs
+    res = np.asarray(ctx.residuals.residual, dtype=float)
+    y = ctx.train.y
+    names = list(ctx.train.outputs)
+    n = min(len(res), len(y))
+    if n < 10:
+        return pairs[:MAX_PAIRS]
+    res, y = res[-n:], y[-n:]
+    res = np.where(np.isfinite(res), res, 0.0)
+    res = (res - res.mean(axis=0)) / np.where(res.std(axis=0) > 0, res.std(axis=0), 1.0)
+    score = []
+    for p in pairs:
+        d = y[:, names.index(p.a)] - y[:, names.index(p.b)]
+        score.append(max(float(np.max(np.abs(pr @ res))) for pr in _probes(d)))
+    keep = sorted(np.argsort(score)[::-1][:MAX_PAIRS])
+    return [pairs[i] for i in keep]

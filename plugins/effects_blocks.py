@@ -668,7 +668,7 @@ class Backlash:
         ``d`` itself, a regressor too close to the outputs for a re-identified N4SID
         baseline).  Centred at the difference's mean, and at zero too where a static load
         moves the mean off it (:meth:`Pair.centres`)."""
-        pairs = _bodies.output_pairs(ctx.train)
+        pairs = _bodies.screened_pairs(ctx)
         groups = [[(p, "mean", p.mean)] for p in pairs]
         groups += [[(p, "zero", 0.0)] for p in pairs if "zero" in p.centres()]
         if len(pairs) > 1:

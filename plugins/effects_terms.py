@@ -200,7 +200,7 @@ class CoulombFriction(_TermEffect):
                 out.append(({**params, "asymmetric": True}, [*terms, *sq]))
         # Friction between two bodies whose positions are both outputs (a joint's bearing, a
         # slipping clutch): the sign of their relative velocity (plugins/_bodies.py)
-        for pair in _bodies.output_pairs(ctx.train):
+        for pair in _bodies.screened_pairs(ctx):
             rel = y[:, list(ctx.train.outputs).index(pair.a)]
             rel = rel - y[:, list(ctx.train.outputs).index(pair.b)]
             for m in self.relative_spans:
@@ -315,7 +315,7 @@ class NonlinearStiffness(_TermEffect):
             outs.append(({"structure": "tanh", "scale_in_std": c}, terms))
         # A spring between two bodies whose positions are both measured: the cube of their
         # difference (plugins/_bodies.py), each pair alone and every pair together.
-        pairs = _bodies.output_pairs(ctx.train)
+        pairs = _bodies.screened_pairs(ctx)
         for pair in pairs:
             for about, centre in pair.centres().items():
                 term = _bodies.pair_term(pair, "pow", centre=centre, power=3)
@@ -730,7 +730,7 @@ class Hysteresis(_TermEffect):
         # A hysteretic coupling between two bodies whose positions are both outputs (a rubber
         # mount, a tendon's sheath, a bolted joint that slips): the operator on the difference
         # of the two outputs (plugins/_bodies.py); fewer Bouc-Wen shapes than above
-        for pair in _bodies.output_pairs(ctx.train):
+        for pair in _bodies.screened_pairs(ctx):
             between = {"between": pair.label}
             outs += [
                 ({"structure": "bouc_wen", **between, "a": a, "b": a * r},

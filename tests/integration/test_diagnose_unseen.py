@@ -240,15 +240,16 @@ def two_inertia(effect: str, p: dict[str, float], seed: int, n: int = 5000) -> D
 
 @pytest.mark.parametrize(
     ("effect", "seed"),
-    [("none", 903), ("backlash", 903), ("backlash", 904), ("nonlinear_stiffness", 903),
-     ("nonlinear_stiffness", 904), ("coulomb_friction", 904), ("hysteresis", 903)],
+    [("none", 903), ("backlash", 903), ("nonlinear_stiffness", 904), ("coulomb_friction", 904),
+     ("hysteresis", 903)],
 )  # fmt: skip
 def test_a_coupling_between_two_bodies_is_found(effect, seed):
     """Default options on the two-inertia drive: the gap, the hardening, the slip or the
     hysteresis of the shaft is named, as a function of the *difference* of the two measured
     angles (before the effects between two bodies, play and a hardening spring between two
     masses of a chain were missed 4 of 4, benchmarks/README.md); with none, nothing is
-    named."""
+    named.  Backlash 904 and the hardening 903 pass too (measured 2026-11-26); they are left out
+    for the suite's time."""
     rng = np.random.default_rng(seed)
     p = {
         "none": {},
@@ -269,3 +270,5 @@ def test_a_coupling_between_two_bodies_is_found(effect, seed):
         # the extended model's term reads both angles: the coupling, not either body alone
         rep = d.extended.representation
         assert any(f.minus for t in rep.terms for f in t.factors)
+        text = render_diagnosis(d.to_dict())
+        assert f"extended ({d.best.effect} between theta_m-theta_l)" in text, text

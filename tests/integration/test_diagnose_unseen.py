@@ -243,7 +243,7 @@ def two_inertia(effect: str, p: dict[str, float], seed: int, n: int = 5000) -> D
     [("none", 903), ("backlash", 903), ("nonlinear_stiffness", 904), ("coulomb_friction", 904),
      ("hysteresis", 903)],
 )  # fmt: skip
-def test_a_coupling_between_two_bodies_is_found(effect, seed):
+def test_a_coupling_between_two_bodies_is_found(effect, seed, tmp_path):
     """Default options on the two-inertia drive: the gap, the hardening, the slip or the
     hysteresis of the shaft is named, as a function of the *difference* of the two measured
     angles (before the effects between two bodies, play and a hardening spring between two
@@ -272,3 +272,8 @@ def test_a_coupling_between_two_bodies_is_found(effect, seed):
         assert any(f.minus for t in rep.terms for f in t.factors)
         text = render_diagnosis(d.to_dict())
         assert f"extended ({d.best.effect} between theta_m-theta_l)" in text, text
+        if effect == "backlash":  # the HTML report says it too
+            from tendonkit.diagnose.report import write_report
+
+            html = write_report(d, valid, tmp_path / "report").read_text()
+            assert "Named cause: backlash between theta_m-theta_l" in html

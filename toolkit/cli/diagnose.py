@@ -9,7 +9,7 @@ from typing import Any
 
 from ..dataset import Dataset
 from ..diagnose import diagnose
-from ..diagnose.findings import evidence_notes, experiment_lead, reshaping_notes
+from ..diagnose.findings import between_text, evidence_notes, experiment_lead, reshaping_notes
 from ..diagnose.report import write_report
 from ..errors import DataError
 from ..manager import effects
@@ -176,14 +176,6 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     return 0
 
 
-def _between(params: dict[str, Any] | None) -> str:
-    """`` between y1-y2`` for an extension acting between two outputs (two bodies), else ``""``."""
-    pair = (params or {}).get("between")
-    if not pair:
-        return ""
-    return f" between {pair if isinstance(pair, str) else ', '.join(map(str, pair))}"
-
-
 def _render_step(st: dict[str, Any]) -> list[str]:
     """The lines of one step of the sequence of causes."""
     notes = [f"     {n}" for n in reshaping_notes(st)]
@@ -203,7 +195,7 @@ def _render_step(st: dict[str, Any]) -> list[str]:
             notes.append(f"     {st['stop']}")
         return lines + notes
     lines = [
-        f"  {st['step']}. {st['cause']} ({st['effect']}{_between(st.get('params'))}): fit "
+        f"  {st['step']}. {st['cause']} ({st['effect']}{between_text(st.get('params'))}): fit "
         f"{st['fit_before']:.2f} -> "
         f"{st['fit']:.2f} % (gain {st['gain']:+.2f} points, p_adj={st['p_adjusted']:.3g})"
     ]
@@ -260,7 +252,7 @@ def render_diagnosis(summary: dict[str, Any]) -> str:
     ext = summary["extended"]
     if summary["cause"] != "none":
         lines.append(
-            f"extended ({ext['effect']}{_between(ext.get('params'))}): fit {ext['fit']:.2f} % "
+            f"extended ({ext['effect']}{between_text(ext.get('params'))}): fit {ext['fit']:.2f} % "
             f"(gain {ext['gain']:+.2f} points)"
             + (f", model: {ext['model']}" if ext.get("model") else "")
         )

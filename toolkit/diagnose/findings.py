@@ -133,6 +133,15 @@ def reshapes(cause: str, params: dict[str, Any], named: str, named_params: dict[
     return related and bool(paths)
 
 
+def between_text(params: dict[str, Any] | None) -> str:
+    """``" between y1-y2"`` for an extension acting between two outputs (two bodies,
+    plugins/_bodies.py), else ``""``."""
+    pair = (params or {}).get("between")
+    if not pair:
+        return ""
+    return f" between {pair if isinstance(pair, str) else ', '.join(map(str, pair))}"
+
+
 def reshape_reason(cause: str, named: str, index: int) -> str:
     """Why an extension of ``cause`` is not tried after ``named`` was named at step ``index``."""
     why = (

@@ -17,7 +17,7 @@ from ..figures import (
 from ..report import Report
 from . import Diagnosis
 from .engine import simulate_all
-from .findings import evidence_notes, experiment_lead, reshaping_notes
+from .findings import between_text, evidence_notes, experiment_lead, reshaping_notes
 
 
 def explaining_signal(cause: str, data: Dataset, j: int) -> tuple[np.ndarray, str]:
@@ -62,7 +62,8 @@ def write_report(
             rep.text(note[0].upper() + note[1:])
     else:
         rep.text(
-            f"Named cause: {best.cause} ({best.description}). Validation fit "
+            f"Named cause: {best.cause}{between_text(best.params)} ({best.description}). "
+            f"Validation fit "
             f"{d['baseline']['fit']:.2f} % -> {d['extended']['fit']:.2f} % "
             f"(gain {best.gain:+.2f} points, adjusted p = {best.p_adjusted:.2g})."
         )

@@ -38,3 +38,22 @@ def test_pairs_of_many_outputs_are_screened_by_the_training_residual(monkeypatch
     monkeypatch.setattr(_bodies, "MAX_PAIRS", 6)
     four = Dataset.from_arrays(data.u, y[:, :4], dt=0.01, inputs=["u"], outputs=names[:4])
     assert len(_bodies.screened_pairs(SimpleNamespace(train=four, residuals=None))) == 6  # type: ignore[arg-type]
+
+
+def test_a_position_and_its_speed_are_not_a_pair_of_bodies():
+    """The difference of a position and a speed of one body is the speed (the larger signal):
+    not a coupling, and a narrow sat of it would be the speed's sign, friction's structure.
+    Two coupled bodies' positions are a pair."""
+    from tendonkit.dataset import Dataset
+    from tendonkit.plugins import _bodies
+
+    t = np.arange(3000) * 0.01
+    x = np.sin(10 * t) * 0.1 + 0.05 * np.sin(3.1 * t)
+    v = np.gradient(x, 0.01)
+    both = Dataset.from_arrays(np.sin(np.arange(3000.0))[:, None], np.column_stack([x, v]), dt=0.01,
+                               inputs=["u"], outputs=["x", "v"])  # fmt: skip
+    assert _bodies.output_pairs(both) == []
+    x2 = 0.8 * x + 0.02 * np.sin(17 * t)  # a second body, coupled to the first
+    two = Dataset.from_arrays(np.sin(np.arange(3000.0))[:, None], np.column_stack([x, x2]), dt=0.01,
+                              inputs=["u"], outputs=["x1", "x2"])  # fmt: skip
+    assert [(p.a, p.b) for p in _bodies.output_pairs(two)] == [("x1", "x2")]

@@ -13,8 +13,9 @@ Every effect that models a force of the outputs tries it on every pair of output
 own coefficient, so the data say which bodies it pushes and how hard.
 
 A linear term in ``d`` is in the baseline already (its output lags); only the nonlinear part
-is new.  Normalised by the difference's own mean and spread, so the same fractions of a spread
-serve any units.
+is new.  Normalised by the difference's own spread, so the same fractions of a spread serve
+any units, and centred at its mean — and at zero too where the difference crosses zero away
+from its mean (:meth:`Pair.centres`).
 
 With ``n`` outputs there are ``n(n−1)/2`` pairs and every effect tries each: beyond
 :data:`MAX_PAIRS` (four outputs), only the pairs whose difference the baseline's training
@@ -72,7 +73,7 @@ def output_pairs(data: Dataset) -> list[Pair]:
     one body, whose difference is the speed — a narrow ``sat`` of it is the speed's sign, the
     friction effect's structure, and on a mass measured by both it gained +10.2 beside
     friction's +10.4.  The outputs of two coupled bodies share their common motion and differ
-    by the coupling's stretch (0.4–0.85 on the plants tried).
+    by the coupling's stretch (0.3–0.85 on the plants tried).
     """
     y = data.y
     names = list(data.outputs)
@@ -130,10 +131,8 @@ def screened_pairs(ctx: Context) -> list[Pair]:
     res = np.asarray(ctx.residuals.residual, dtype=float)
     y = ctx.train.y
     names = list(ctx.train.outputs)
-    n = min(len(res), len(y))
-    if n < 10:
+    if res.shape[0] != y.shape[0] or len(y) < 10:  # not sample for sample: no screen
         return pairs[:MAX_PAIRS]
-    res, y = res[-n:], y[-n:]
     res = np.where(np.isfinite(res), res, 0.0)
     res = (res - res.mean(axis=0)) / np.where(res.std(axis=0) > 0, res.std(axis=0), 1.0)
     score = []

@@ -57,3 +57,14 @@ def test_a_position_and_its_speed_are_not_a_pair_of_bodies():
     two = Dataset.from_arrays(np.sin(np.arange(3000.0))[:, None], np.column_stack([x, x2]), dt=0.01,
                               inputs=["u"], outputs=["x1", "x2"])  # fmt: skip
     assert [(p.a, p.b) for p in _bodies.output_pairs(two)] == [("x1", "x2")]
+
+
+def test_a_coupling_off_zero_is_also_centred_at_zero():
+    """A difference that crosses zero away from its mean (a static load twists the shaft off
+    the sensors' zero) is centred at zero too; one about its mean, or one that never crosses
+    zero, only at its mean."""
+    from tendonkit.plugins._bodies import Pair
+
+    assert Pair("a", "b", 0.3, 1.0, True).centres() == {"mean": 0.3, "zero": 0.0}
+    assert Pair("a", "b", 0.05, 1.0, True).centres() == {"mean": 0.05}
+    assert Pair("a", "b", 3.0, 1.0, False).centres() == {"mean": 3.0}

@@ -4,9 +4,9 @@ A coupling between two bodies — a spring, a gear mesh, a loose joint — exert
 depends on their *relative* position (or velocity), and acts on both with opposite signs.
 When both positions are measured (a chain of masses, two joints, a motor and its load), the
 coupling's nonlinearity is a function of ``y_i - y_j``, not of either output alone: a hardening
-coupling ``k (d + α d³)``, a gap (a spring with play, ``k·dead_zone(d, b) = k·d − k·sat(d, b)``:
-the linear part is the baseline's, so the term is ``sat``), a slipping joint, a hysteretic
-mount.
+coupling ``k (d + α d³)``, a gap (a spring with play,
+``k·dead_zone(d, b) = k·d − k·sat(d, b)``: the linear part is the baseline's, so the term is
+``sat``), a slipping joint, a hysteretic mount.
 Every effect that models a force of the outputs tries it on every pair of outputs
 (:func:`output_pairs`); the term reads both outputs one sample back
 (:class:`tendonkit.terms.Factor` with ``minus``) and enters every output's equation with its
@@ -24,6 +24,7 @@ residuals follow most closely are tried (:func:`screened_pairs`).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from itertools import combinations
 from typing import Any, NamedTuple
 
@@ -65,6 +66,11 @@ class Pair(NamedTuple):
 SAME_AS_ONE = 0.95
 
 
+def difference(y: np.ndarray, outputs: Sequence[str], a: str, b: str) -> np.ndarray:
+    """``y_a - y_b`` from the stacked outputs ``y`` (columns named by ``outputs``)."""
+    return y[:, list(outputs).index(a)] - y[:, list(outputs).index(b)]
+
+
 def output_pairs(data: Dataset) -> list[Pair]:
     """Every pair of outputs with the mean and spread of their difference over the record.
 
@@ -76,17 +82,16 @@ def output_pairs(data: Dataset) -> list[Pair]:
     by the coupling's stretch (0.3–0.85 on the plants tried).
     """
     y = data.y
-    names = list(data.outputs)
     out = []
-    for i, j in combinations(range(len(names)), 2):
-        d = y[:, i] - y[:, j]
+    for (i, a), (j, b) in combinations(enumerate(data.outputs), 2):
+        d = difference(y, data.outputs, a, b)
         sd = float(d.std())
         if not (sd > 0 and np.isfinite(sd)):
             continue
-        same = max(abs(_corr(d, y[:, i])), abs(_corr(d, y[:, j])))
-        if same <= SAME_AS_ONE:
+        same = np.nan_to_num(np.corrcoef(np.vstack([d, y[:, i], y[:, j]]))[0, 1:])
+        if np.max(np.abs(same)) <= SAME_AS_ONE:
             crosses = bool(np.mean(d > 0) > 0.05 and np.mean(d < 0) > 0.05)
-            out.append(Pair(names[i], names[j], float(d.mean()), sd, crosses))
+            out.append(Pair(a, b, float(d.mean()), sd, crosses))
     return out
 
 
@@ -95,12 +100,6 @@ def pair_term(pair: Pair, fn: str, centre: float | None = None, **kw: Any) -> Te
     offset = pair.mean if centre is None else centre
     return Term((Factor(pair.a, fn=fn, minus=pair.b, lag=1, scale=1.0 / pair.std,
                         offset=offset, **kw),))  # fmt: skip
-
-
-def _corr(a: np.ndarray, b: np.ndarray) -> float:
-    a, b = a - a.mean(), b - b.mean()
-    den = float(np.sqrt(np.sum(a * a) * np.sum(b * b)))
-    return float(np.sum(a * b)) / den if den > 0 else 0.0
 
 
 #: Most pairs of outputs an effect tries (every pair of four outputs); more are screened.
@@ -130,14 +129,13 @@ def screened_pairs(ctx: Context) -> list[Pair]:
         return pairs
     res = np.asarray(ctx.residuals.residual, dtype=float)
     y = ctx.train.y
-    names = list(ctx.train.outputs)
-    if res.shape[0] != y.shape[0] or len(y) < 10:  # not sample for sample: no screen
+    if res.shape[0] != len(y) or len(y) < 10:  # not sample for sample: no screen
         return pairs[:MAX_PAIRS]
     res = np.where(np.isfinite(res), res, 0.0)
     res = (res - res.mean(axis=0)) / np.where(res.std(axis=0) > 0, res.std(axis=0), 1.0)
     score = []
     for p in pairs:
-        d = y[:, names.index(p.a)] - y[:, names.index(p.b)]
-        score.append(max(float(np.max(np.abs(pr @ res))) for pr in _probes(d)))
+        probes = _probes(difference(y, ctx.train.outputs, p.a, p.b))
+        score.append(max(float(np.max(np.abs(pr @ res))) for pr in probes))
     keep = sorted(np.argsort(score)[::-1][:MAX_PAIRS])
     return [pairs[i] for i in keep]

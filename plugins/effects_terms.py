@@ -201,8 +201,7 @@ class CoulombFriction(_TermEffect):
         # Friction between two bodies whose positions are both outputs (a joint's bearing, a
         # slipping clutch): the sign of their relative velocity (plugins/_bodies.py)
         for pair in _bodies.screened_pairs(ctx):
-            rel = y[:, list(ctx.train.outputs).index(pair.a)]
-            rel = rel - y[:, list(ctx.train.outputs).index(pair.b)]
+            rel = _bodies.difference(y, ctx.train.outputs, pair.a, pair.b)
             for m in self.relative_spans:
                 if 4 * m >= min(e.n_samples for e in ctx.train.experiments):
                     continue

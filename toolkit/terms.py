@@ -436,6 +436,7 @@ class CompiledTerms:
                 self._offset[i, j] = f.offset
                 self._param[i, j] = f.param
                 self._param2[i, j] = f.param2
+        self._anydiff, self._anyminus = bool(self._hasdiff.any()), bool(self._hasminus.any())
         stateful_codes = [_FN_CODES[name] for name in STATEFUL]
         # one group per function (and per exponent for powers: evaluating a group of equal
         # exponents needs no search for them at every step)
@@ -505,11 +506,11 @@ class CompiledTerms:
         # the compiled kernel's order of operations: (s - s_prev) - (r - r_prev), then the
         # offset and the scale
         z = values[self._cur]
-        if self._hasdiff.any():
+        if self._anydiff:
             z = z - np.where(_expand(self._hasdiff, z), values[self._prev], 0.0)
-        if self._hasminus.any():
+        if self._anyminus:
             r = values[self._cur2]
-            if self._hasdiff.any():
+            if self._anydiff:
                 r = r - np.where(_expand(self._hasdiff, r), values[self._prev2], 0.0)
             z = z - np.where(_expand(self._hasminus, z), r, 0.0)
         return (z - _expand(self._offset, z)) * _expand(self._scale, z)
@@ -539,8 +540,9 @@ class CompiledTerms:
         """Derivatives of every term with respect to every key, shape ``(n_terms, n_keys, *batch)``.
 
         Differenced factors contribute ``+scale`` to their current key and ``-scale`` to their
-        previous one; a relative factor (``minus``) the opposite to its second signal's keys.  ``sign`` and the kinks of ``abs``, ``dead_zone``, ``sat`` and ``relu``
-        use their derivative almost everywhere.
+        previous one; a relative factor (``minus``) the opposite to its second signal's keys.
+        ``sign`` and the kinks of ``abs``, ``dead_zone``, ``sat`` and ``relu`` use their
+        derivative almost everywhere.
         """
         values = np.asarray(values, dtype=float)
         batch = values.shape[1:]

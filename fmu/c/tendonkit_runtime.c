@@ -53,6 +53,7 @@ static int load_blocks(reader *r, tk_block *b, int nb, int nsig) {
         b[k].p2 = next(r); /* a cubic's c2, c3 (0 for the other kinds) */
         b[k].p3 = next(r);
         b[k].n = 0;
+        b[k].g = b[k].kind == 7 ? (1.0 + b[k].p0 + b[k].p1) / (1.0 + b[k].p2 + b[k].p3) : 1.0;
         if (b[k].kind == 0) {
             if (!(b[k].p0 >= 0 && b[k].p0 <= 100000 && b[k].p0 == floor(b[k].p0))) r->bad = 1;
             else b[k].n = (int)b[k].p0;
@@ -63,6 +64,15 @@ static int load_blocks(reader *r, tk_block *b, int nb, int nsig) {
 
 #define LIMIT 100000 /* bound on every count and lag read from a resource */
 #define MAX_VALUES 5e7 /* bound on the numbers a model and its state hold (400 MB) */
+
+/* Whether a factor's column c of buffer src exists (ARX: inputs or outputs; state space:
+ * inputs or outputs; sparse map: states or inputs) and an ARX output is read at lag >= 1. */
+static int column_ok(const tk_model *m, int src, int c, int lag) {
+    int ncols;
+    if (m->rep == 2) ncols = src == 0 ? m->nx : m->nu;
+    else ncols = src == 0 ? m->nu : m->ny;
+    return c < ncols && !(m->rep == 1 && src == 1 && lag < 1);
+}
 
 int tk_load(tk_model *m, const char *path, char *why, size_t nwhy) {
     FILE *f;
@@ -250,17 +260,9 @@ int tk_load(tk_model *m, const char *path, char *why, size_t nwhy) {
     if (next(&r) != TK_MAGIC || r.i != r.n) r.bad = 1;
     /* every term reads a column that exists; ARX outputs only from past samples */
     for (k = 0; k < m->nf && !r.bad; k++) {
-        int ncols;
-        if (m->rep == 2) ncols = m->src[k] == 0 ? m->nx : m->nu;
-        else ncols = m->src[k] == 0 ? m->nu : m->ny;
-        if (m->col[k] >= ncols) r.bad = 1;
-        if (m->rep == 1 && m->src[k] == 1 && m->flag[k] < 1) r.bad = 1;
-        if (m->src2[k] >= 0) { /* the minus signal of a relative factor: the same checks */
-            if (m->rep == 2) ncols = m->src2[k] == 0 ? m->nx : m->nu;
-            else ncols = m->src2[k] == 0 ? m->nu : m->ny;
-            if (m->col2[k] >= ncols) r.bad = 1;
-            if (m->rep == 1 && m->src2[k] == 1 && m->flag[k] < 1) r.bad = 1;
-        }
+        if (!column_ok(m, m->src[k], m->col[k], m->flag[k])) r.bad = 1;
+        /* the minus signal of a relative factor: the same checks */
+        if (m->src2[k] >= 0 && !column_ok(m, m->src2[k], m->col2[k], m->flag[k])) r.bad = 1;
     }
     if (r.bad) goto bad;
     free(raw);
@@ -374,11 +376,9 @@ static double block_value(const tk_model *m, const tk_block *b, double s) {
         return started ? st[1] + st[2] : s;
     case 6: /* polynomial: c0 + c1 s + c2 s^2 + c3 s^3 */
         return b->p0 + s * (b->p1 + s * (b->p2 + s * b->p3));
-    case 7: { /* second-order section (1 + b1 q^-1 + b2 q^-2) / (1 + a1 q^-1 + a2 q^-2) at rest
-                 at its first input s0: g s0 + (s - s0) + w1, g its static gain */
-        double g = (1.0 + b->p0 + b->p1) / (1.0 + b->p2 + b->p3);
-        return started ? (st[1] + (s - st[2])) + g * st[2] : g * s; /* scipy's order */
-    }
+    case 7: /* second-order section (1 + b1 q^-1 + b2 q^-2) / (1 + a1 q^-1 + a2 q^-2) at rest
+               at its first input s0: g s0 + (s - s0) + w1, g its static gain; scipy's order */
+        return started ? (st[1] + (s - st[2])) + b->g * st[2] : b->g * s;
     default: /* rate limit */
         v = started ? st[1] : s;
         return v + pmin(pmax(s - v, -b->p0), b->p0);
@@ -519,6 +519,13 @@ static double read(tk_model *m, int src, int c, int back, const double *ub) {
     return src == 0 ? hist(m, m->s_uh, m->nu, back)[c] : hist(m, m->s_yh, m->ny, back)[c];
 }
 
+/* Factor f's reading of column c of buffer src: its sample `flag` back, minus the one `fdiff`
+ * further back when the factor is differenced. */
+static double reading(tk_model *m, int src, int c, int f, const double *ub) {
+    double v = read(m, src, c, m->flag[f], ub);
+    return m->fdiff[f] ? v - read(m, src, c, m->flag[f] + m->fdiff[f], ub) : v;
+}
+
 /* One step of a hysteresis operator (code 9 play, 10 Bouc-Wen; tendonkit.terms._step_stateful)
  * from its state st (NaN: not started); the new state is written only when `commit`. */
 static double memory(int code, double z, double param, double param2, double *st, int commit) {
@@ -543,13 +550,9 @@ static void terms(tk_model *m, const double *ub, int commit) {
     for (t = 0; t < m->nt; t++) {
         double prod = 1.0;
         for (f = m->ptr[t]; f < m->ptr[t + 1]; f++) {
-            double z = read(m, m->src[f], m->col[f], m->flag[f], ub);
-            if (m->fdiff[f]) z = z - read(m, m->src[f], m->col[f], m->flag[f] + m->fdiff[f], ub);
-            if (m->src2[f] >= 0) { /* relative to a second signal (tendonkit.terms.Factor.minus) */
-                double q = read(m, m->src2[f], m->col2[f], m->flag[f], ub);
-                if (m->fdiff[f]) q = q - read(m, m->src2[f], m->col2[f], m->flag[f] + m->fdiff[f], ub);
-                z = z - q;
-            }
+            double z = reading(m, m->src[f], m->col[f], f, ub);
+            if (m->src2[f] >= 0) /* relative to a second signal (tendonkit.terms.Factor.minus) */
+                z = z - reading(m, m->src2[f], m->col2[f], f, ub);
             z = (z - m->offset[f]) * m->scale[f];
             if (m->code[f] >= 9)
                 prod *= memory(m->code[f], z, m->param[f], m->param2[f], m->S + m->s_fs + 2 * f,

@@ -32,7 +32,8 @@
 typedef struct {
     int sig, kind;   /* signal index; 0 delay, 1 dead_zone, 2 saturation, 3 play, 4 lag, 5 rate, 6 polynomial, 7 second-order section */
     double p0, p1;   /* parameters (delay: whole samples n and fraction a; polynomial: c0, c1) */
-    double p2, p3;   /* polynomial: c2, c3 */
+    double p2, p3;   /* polynomial: c2, c3; second-order section: a1, a2 (p0, p1: b1, b2) */
+    double g;        /* second-order section: static gain (1 + b1 + b2) / (1 + a1 + a2) */
     int n;           /* delay: whole samples */
     int off;         /* offset of this block's state in S: started, v, s0, head, fifo[n + 1] */
 } tk_block;

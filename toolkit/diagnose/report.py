@@ -63,7 +63,7 @@ def write_report(
     else:
         rep.text(
             f"Named cause: {best.cause}{between_text(best.params)} ({best.description}). "
-            f"Validation fit "
+            "Validation fit "
             f"{d['baseline']['fit']:.2f} % -> {d['extended']['fit']:.2f} % "
             f"(gain {best.gain:+.2f} points, adjusted p = {best.p_adjusted:.2g})."
         )

@@ -52,26 +52,30 @@ def nonlinear_problems(model: Model) -> list[str]:
         problems.append(f"output block {b.kind!r} on {b.signal!r} is not supported by the MPC.")
     uneven = _uneven_differences(model)
     if uneven:
-        problems.append(
-            f"the factors {', '.join(uneven)} take the difference of two signals behind "
-            "different input delays; the nonlinear MPC's rollout reads each factor at one lag."
-        )
+        problems.append(uneven)
     return problems
 
 
-def _uneven_differences(model: Model) -> list[str]:
-    """Labels of the factors (``minus``) whose two signals have different input delays."""
+def _uneven_differences(model: Model) -> str:
+    """Why the factors (``minus``) whose two signals have different input delays cannot be
+    rolled out (empty when there are none)."""
     delay: dict[str, float] = {}
     for b in model.input_blocks:
         if b.kind == "delay":
             delay[b.signal] = delay.get(b.signal, 0.0) + float(b.params["samples"])
     terms = getattr(model.representation, "terms", ()) or ()
-    return [
+    uneven = [
         f.label
         for t in terms
         for f in t.factors
         if f.minus and delay.get(f.signal, 0.0) != delay.get(f.minus, 0.0)
     ]
+    if not uneven:
+        return ""
+    return (
+        f"the factors {', '.join(uneven)} take the difference of two signals behind different "
+        "input delays; the nonlinear MPC's rollout reads each factor at one lag."
+    )
 
 
 class SparseMapDynamics:
@@ -100,11 +104,7 @@ class SparseMapDynamics:
             )
         uneven = _uneven_differences(model)
         if uneven:
-            raise OptionError(
-                f"{model.name!r}: the factors {', '.join(uneven)} take the difference of two "
-                "signals behind different input delays; the nonlinear MPC's rollout reads "
-                "each factor at one lag."
-            )
+            raise OptionError(f"{model.name!r}: {uneven}")
         self.coef_T = np.asarray(rep.coefficients, dtype=float).T  # (nx, n_terms)
         nx, nu = len(states), len(inputs)
         lx = max((lag for name, lag in self.terms.keys if name not in delay), default=0)

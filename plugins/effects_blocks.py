@@ -42,12 +42,6 @@ def _with_input_blocks(ctx: Context, blocks: Sequence[Block]) -> Callable[[Datas
     return refit_with_input_blocks(ctx.refit, blocks)
 
 
-def _select_and_finish(
-    ctx: Context, effect: Any, cands: list[tuple[dict[str, Any], Callable[[Dataset], Model]]]
-) -> Extension | None:
-    return ctx.best_extension(cands, effect.description) if cands else None
-
-
 def _single_inputs(
     ctx: Context,
     params: dict[str, Any],
@@ -658,7 +652,9 @@ class Backlash:
             }
             cands.append((params, build))
         cands += self._between(ctx)
-        return _select_and_finish(ctx, self, cands)
+        # every pair together only where it earns its extra terms (_bodies.select_pairs)
+        params, model, score = _bodies.select_pairs(ctx, cands)
+        return ctx.extension(params, model, score, self.description)
 
     def _between(self, ctx: Context) -> list[tuple[dict[str, Any], Callable[[Dataset], Model]]]:
         """A gap in a coupling between two bodies whose positions are both outputs, on every

@@ -327,6 +327,12 @@ class NonlinearStiffness(_TermEffect):
                           "powers": [3], "about": "mean"}, terms))  # fmt: skip
         return outs
 
+    def extend(self, ctx: Context) -> Extension | None:
+        """The best training simulation fit; every pair together only where it earns its
+        extra terms against the best single pair (:func:`_bodies.select_pairs`)."""
+        params, model, score = _bodies.select_pairs(ctx, self.builders(ctx))
+        return ctx.extension(params, model, score, self.description)
+
     def signature(
         self, ctx: Context, baseline: Model, valid: Dataset, res: ResidualAnalysis
     ) -> dict[str, Any]:

@@ -68,3 +68,42 @@ def test_a_coupling_off_zero_is_also_centred_at_zero():
     assert Pair("a", "b", 0.3, 1.0, True).centres() == {"mean": 0.3, "zero": 0.0}
     assert Pair("a", "b", 0.05, 1.0, True).centres() == {"mean": 0.05}
     assert Pair("a", "b", 3.0, 1.0, False).centres() == {"mean": 3.0}
+
+
+def test_every_pair_together_must_earn_its_extra_terms():
+    """The candidate with every pair together is kept only where it lowers the best single
+    pair's training misfit (100 − fit) by 1 % (the automatic ARX's parsimony): the cubes of all
+    three differences of a chain fitted 0.8 % better than the one pair that holds the spring,
+    and simulated the validation record 6 points worse."""
+    from tendonkit.dataset import Dataset
+    from tendonkit.diagnose import Context
+    from tendonkit.plugins import _bodies
+
+    rng = np.random.default_rng(0)
+    data = Dataset.from_arrays(rng.normal(size=(10, 1)), rng.normal(size=(10, 3)), dt=0.01,
+                               inputs=["u"], outputs=["x1", "x2", "x3"])  # fmt: skip
+    models = {label: object() for label in ("x1-x2", "x2-x3", "all")}
+
+    def chosen(scores: dict[str, float | None]) -> object:
+        ctx = Context(train=data, baseline=None, identifier=None, residuals=None)  # type: ignore[arg-type]
+        ctx.score = lambda m: next(  # type: ignore[method-assign]
+            s if s is not None else float("-inf") for k, s in scores.items() if models[k] is m
+        )
+        cands = [
+            ({"between": label if label != "all" else ["x1-x2", "x2-x3"]},
+             lambda d, label=label: models[label])
+            for label in models
+        ]  # fmt: skip
+        params, model, score = _bodies.select_pairs(ctx, cands)
+        label = next(k for k, m in models.items() if m is model)
+        assert score == scores[label]  # the model, its score and its params belong together
+        assert params["between"] == (label if label != "all" else ["x1-x2", "x2-x3"])
+        return model
+
+    # all pairs 0.85 % better than the best single pair: not earned, the single pair is kept
+    assert chosen({"x1-x2": 90.0, "x2-x3": 96.46, "all": 96.49}) is models["x2-x3"]
+    # 4 % better: earned
+    assert chosen({"x1-x2": 90.0, "x2-x3": 96.46, "all": 96.60}) is models["all"]
+    # a single pair that fits best is chosen as before; no single pair that fits: all pairs
+    assert chosen({"x1-x2": 97.0, "x2-x3": 96.46, "all": 96.49}) is models["x1-x2"]
+    assert chosen({"x1-x2": None, "x2-x3": None, "all": 96.49}) is models["all"]

@@ -628,6 +628,45 @@ def test_parsimony_yields_to_an_encompassing_finding(after_simpler, after_best, 
     assert _encompassing(best, simpler, lambda a, b: None, 0.25) is None
 
 
+def test_a_shape_that_gains_as_much_as_its_significant_general_curve_contests_it():
+    """A special case of a significant general cause contests it when it is significant too,
+    or, where the contest refines both, when it gains at least tie_ratio of the general one's
+    without being significant on its own (a pump clip on a slow process: +30.9 with p_adj
+    0.014, the curve +28.7 with p_adj 1e-4): the curve's test says a static curve is there,
+    the refined contest which shape.  A special case far below it, or any without the
+    refinement that decides the contest, does not."""
+    curve = _sig("static_nonlinearity", 28.7, 10)
+    clip = dataclasses.replace(_sig("saturation", 30.9, 1), significant=False, p_adjusted=0.014)
+    loss = np.random.default_rng(0).standard_normal(2000) ** 2
+    losses = {f.effect: (loss, None) for f in (curve, clip)}
+    met = []
+
+    def contest(general: Finding, special: Finding) -> Finding:
+        met.append((general.effect, special.effect))
+        return special
+
+    assert _name_cause([clip, curve], losses, 0.01, 0.8, contest).effect == "saturation"
+    assert met == [("static_nonlinearity", "saturation")]
+    # without refinement only a significant special case contests: the curve is named
+    assert _name_cause([clip, curve], losses, 0.01, 0.8).effect == "static_nonlinearity"
+    # a clip far below the curve (less than tie_ratio of its gain) does not contest it
+    weak = dataclasses.replace(clip, gain=20.0)
+    assert _name_cause([curve, weak], losses, 0.01, 0.8, contest).effect == "static_nonlinearity"
+    assert len(met) == 1
+    # the result says why a finding that is not significant on its own is named
+    from tendonkit.diagnose.findings import evidence_notes
+
+    named = dataclasses.replace(
+        clip,
+        test={"contest": {"between": ["static_nonlinearity", "saturation"], "named": "saturation",
+                          "refined_gains": {"saturation": 38.6, "static_nonlinearity": 33.7}}},
+    )  # fmt: skip
+    summary = {"named_effect": "saturation", "findings": [named.to_dict(), curve.to_dict()]}
+    (note,) = [n for n in evidence_notes(summary) if "on its own" in n]
+    assert "static_nonlinearity is (p_adj = 1e-06)" in note
+    assert "+38.60 points against the general curve's +33.70" in note
+
+
 @pytest.mark.parametrize(
     ("friction_after_play", "play_after_friction", "named", "decided"),
     [

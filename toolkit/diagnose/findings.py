@@ -461,6 +461,19 @@ def evidence_notes(summary: dict[str, Any]) -> list[str]:
             f"p = {best['test']['loss_p_value']:.2g} (before the adjustment for trying every "
             "effect)."
         )
+    contest = best.get("test", {}).get("contest")
+    if contest and not best["significant"]:
+        general = next((f for f in findings if f["effect"] in contest["between"]
+                        and f["effect"] != best["effect"]), None)  # fmt: skip
+        if general is not None:
+            notes.append(
+                f"not significant on its own (p_adj = "
+                f"{best.get('p_adjusted', best['p_value']):.2g}), but {general['cause']} is "
+                f"(p_adj = {general.get('p_adjusted', general['p_value']):.2g}): a static curve "
+                f"is there, and refined by simulation error its shape as {best['cause']} gains "
+                f"{contest['refined_gains'][best['effect']]:+.2f} points against the general "
+                f"curve's {contest['refined_gains'][general['effect']]:+.2f}."
+            )
     held = best.get("test", {}).get("held_out") or {}
     decided = "p_route" in held and held["p_route"] * best["test"].get("routes", 1) <= (
         best["p_value"] * (1 + 1e-9)

@@ -165,22 +165,22 @@ def select_pairs(
 ) -> tuple[dict[str, Any], Model | None, float]:
     """:meth:`Context.select` of an effect's candidates, with every pair together (params
     ``between`` a list) kept only where it beats the best single pair (``between`` one
-    label) by :data:`TOGETHER_MARGIN` of its training misfit."""
+    label) by :data:`TOGETHER_MARGIN` of its training misfit; otherwise the best of the other
+    candidates (a single pair, or a term of each output) is chosen."""
     params, model, score, tried = ctx.select(cands)
     if model is None or not isinstance(params.get("between"), list):
         return params, model, score
-    singles = [
-        t
-        for t in tried
-        if isinstance(t["params"].get("between"), str)
-        and t.get("score") is not None
-        and math.isfinite(t["score"])
-    ]
+    scored = [t for t in tried if t.get("score") is not None and math.isfinite(t["score"])]
+    singles = [t for t in scored if isinstance(t["params"].get("between"), str)]
     if not singles:
         return params, model, score
     one = max(singles, key=lambda t: t["score"])
     if 100.0 - score < (1.0 - TOGETHER_MARGIN) * (100.0 - one["score"]):
         return params, model, score
-    build = next(b for p, b in cands if p is one["params"])
-    p1, m1, s1, _ = ctx.select([(one["params"], build)])
+    other = max(
+        (t for t in scored if not isinstance(t["params"].get("between"), list)),
+        key=lambda t: t["score"],
+    )
+    build = next(b for p, b in cands if p is other["params"])
+    p1, m1, s1, _ = ctx.select([(other["params"], build)])
     return (p1, m1, s1) if m1 is not None else (params, model, score)

@@ -82,28 +82,34 @@ def test_every_pair_together_must_earn_its_extra_terms():
     rng = np.random.default_rng(0)
     data = Dataset.from_arrays(rng.normal(size=(10, 1)), rng.normal(size=(10, 3)), dt=0.01,
                                inputs=["u"], outputs=["x1", "x2", "x3"])  # fmt: skip
-    models = {label: object() for label in ("x1-x2", "x2-x3", "all")}
+    models = {label: object() for label in ("x1-x2", "x2-x3", "each output", "all")}
 
     def chosen(scores: dict[str, float | None]) -> object:
         ctx = Context(train=data, baseline=None, identifier=None, residuals=None)  # type: ignore[arg-type]
         ctx.score = lambda m: next(  # type: ignore[method-assign]
             s if s is not None else float("-inf") for k, s in scores.items() if models[k] is m
         )
+        between = {"x1-x2": "x1-x2", "x2-x3": "x2-x3", "all": ["x1-x2", "x2-x3"]}
         cands = [
-            ({"between": label if label != "all" else ["x1-x2", "x2-x3"]},
+            ({"between": between[label]} if label in between else {"structure": "odd powers"},
              lambda d, label=label: models[label])
             for label in models
         ]  # fmt: skip
         params, model, score = _bodies.select_pairs(ctx, cands)
         label = next(k for k, m in models.items() if m is model)
         assert score == scores[label]  # the model, its score and its params belong together
-        assert params["between"] == (label if label != "all" else ["x1-x2", "x2-x3"])
+        assert params.get("between") == between.get(label)
         return model
 
     # all pairs 0.85 % better than the best single pair: not earned, the single pair is kept
-    assert chosen({"x1-x2": 90.0, "x2-x3": 96.46, "all": 96.49}) is models["x2-x3"]
+    mine = {"x1-x2": 90.0, "x2-x3": 96.46, "each output": 80.0}
+    assert chosen({**mine, "all": 96.49}) is models["x2-x3"]
+    # ... or a candidate of another kind, where that fits better than every single pair
+    assert chosen({**mine, "each output": 96.48, "all": 96.49}) is models["each output"]
     # 4 % better: earned
-    assert chosen({"x1-x2": 90.0, "x2-x3": 96.46, "all": 96.60}) is models["all"]
+    assert chosen({**mine, "all": 96.60}) is models["all"]
     # a single pair that fits best is chosen as before; no single pair that fits: all pairs
-    assert chosen({"x1-x2": 97.0, "x2-x3": 96.46, "all": 96.49}) is models["x1-x2"]
-    assert chosen({"x1-x2": None, "x2-x3": None, "all": 96.49}) is models["all"]
+    assert chosen({**mine, "x1-x2": 97.0, "all": 96.49}) is models["x1-x2"]
+    assert (
+        chosen({"x1-x2": None, "x2-x3": None, "each output": 80.0, "all": 96.49}) is models["all"]
+    )

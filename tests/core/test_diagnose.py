@@ -636,7 +636,9 @@ def test_a_shape_that_gains_as_much_as_its_significant_general_curve_contests_it
     the refined contest which shape.  A special case far below it, or any without the
     refinement that decides the contest, does not."""
     curve = _sig("static_nonlinearity", 28.7, 10)
-    clip = dataclasses.replace(_sig("saturation", 30.9, 1), significant=False, p_adjusted=0.014)
+    clip = dataclasses.replace(
+        _sig("saturation", 30.9, 1), significant=False, p_adjusted=0.014, test={"train_gain": 4.0}
+    )
     loss = np.random.default_rng(0).standard_normal(2000) ** 2
     losses = {f.effect: (loss, None) for f in (curve, clip)}
     met = []
@@ -652,6 +654,9 @@ def test_a_shape_that_gains_as_much_as_its_significant_general_curve_contests_it
     # a clip far below the curve (less than tie_ratio of its gain) does not contest it
     weak = dataclasses.replace(clip, gain=20.0)
     assert _name_cause([curve, weak], losses, 0.01, 0.8, contest).effect == "static_nonlinearity"
+    # nor one that did not improve the training fit (which can name no cause)
+    worse = dataclasses.replace(clip, test={"train_gain": -0.5})
+    assert _name_cause([worse, curve], losses, 0.01, 0.8, contest).effect == "static_nonlinearity"
     assert len(met) == 1
     # the result says why a finding that is not significant on its own is named
     from tendonkit.diagnose.findings import evidence_notes

@@ -47,7 +47,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import pickle
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -747,6 +747,24 @@ def _contest_possible(causes: set[str]) -> bool:
     return any(c in SPECIAL_CASES.get(g, ()) for c in causes for g in causes)
 
 
+def _shape_may_contest(
+    significant: Sequence[Finding], trials: Iterable[Trial], settings: Settings
+) -> bool:
+    """Whether a special case may contest a significant general cause (step 6, the cause
+    named then has a smaller gain or is not significant itself): a significant one beside it,
+    or, where the contest refines both, one that gains ``tie_ratio`` of it."""
+    if _contest_possible({f.cause for f in significant}):
+        return True
+    if not settings.refine:
+        return False
+    trials = list(trials)
+    return any(
+        t.cause in SPECIAL_CASES.get(g.cause, ()) and t.gain >= settings.tie_ratio * g.gain
+        for g in significant
+        for t in trials
+    )
+
+
 def _cannot_name(
     t: Trial, significant: Sequence[Finding], trials: dict[str, Trial], settings: Settings
 ) -> bool:
@@ -764,6 +782,8 @@ def _cannot_name(
     if not significant:
         return False
     if _contest_possible({f.cause for f in significant} | {t.cause}):
+        return False
+    if _shape_may_contest(significant, trials.values(), settings):
         return False
     top = max(significant, key=lambda f: f.gain)
     if not t.gain < settings.tie_ratio * top.gain:
@@ -826,7 +846,7 @@ def complete_held_out(
     # that followed made a contest possible (a special case significant beside its general
     # cause), the cause named may have a smaller gain, and the skipped ones are computed.
     found = [f for f in adjust(out, settings) if f.significant]
-    if skipped and _contest_possible({f.cause for f in found}):
+    if skipped and _shape_may_contest(found, out, settings):
         for i in skipped:
             compute(i)
     return out
@@ -1541,7 +1561,7 @@ def conclude(
 
         def contest(general: Finding, special: Finding) -> Finding:
             direct = special.test.get("direct") or {}
-            if direct.get("p_value", 1.0) < settings.alpha:
+            if special.significant and direct.get("p_value", 1.0) < settings.alpha:
                 return special  # seen in the data (a clipped output piled up at its level)
             gains = {f.effect: _refined_gain(f, train, valid, ref) for f in (general, special)}
             winner = special if gains[special.effect] >= gains[general.effect] else general
@@ -1578,7 +1598,8 @@ def conclude(
             "better baseline, or validate on data like the training data)."
         )
         best = None
-    findings = [_with_training_fit(f, train) for f in findings]
+    named = best.effect if best is not None else None
+    findings = [_with_training_fit(f, train, f.effect == named) for f in findings]
     if best is not None:
         best = next(f for f in findings if f.effect == best.effect)
     ambiguous = (
@@ -1793,7 +1814,10 @@ def _name_cause(
         special += [
             f
             for f in findings
-            if f.cause in shapes and not f.significant and f.gain >= tie_ratio * best.gain
+            if f.cause in shapes
+            and not f.significant
+            and f.gain >= tie_ratio * best.gain
+            and f.test.get("train_gain", 0.0) > 0.0  # as for any cause (adjust)
         ]
     if special:
         # A static curve contains a clip and a dead band.  Which one the data show is decided
@@ -1923,10 +1947,11 @@ def cross_gains(
     return cross
 
 
-def _with_training_fit(f: Finding, train: Dataset) -> Finding:
-    """Fill in the training fit of a finding's extended model (skipped while searching)."""
+def _with_training_fit(f: Finding, train: Dataset, named: bool = False) -> Finding:
+    """Fill in the training fit of a significant or ``named`` finding's extended model
+    (skipped while searching)."""
 
-    if f.model is None or not f.significant:
+    if f.model is None or not (f.significant or named):
         return f
     prov = dataclasses.replace(f.model.provenance, training_fit=training_fit(f.model, train))
     return dataclasses.replace(f, model=f.model.replace(provenance=prov))

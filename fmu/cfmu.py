@@ -46,9 +46,9 @@ from tendonkit.errors import FMUError
 from tendonkit.realize import arx_lag_matrices, fold_offsets
 from tendonkit.robot import RobotParameters
 from tendonkit.schema import ARX, Block, Model, SparseMap, StateSpace
-from tendonkit.simulate import split_delay
+from tendonkit.simulate import flat_terms, split_delay
 from tendonkit.stepper import history_length
-from tendonkit.terms import FUNCTIONS, Term
+from tendonkit.terms import Term
 
 __all__ = [
     "PLATFORMS",
@@ -92,7 +92,6 @@ _BLOCK_CODES = {
     "polynomial": 6,
     "second_order_section": 7,
 }
-_FN_CODES = {name: i for i, name in enumerate(FUNCTIONS)}
 #: The factor functions the C runtime implements (``fn()`` in tendonkit_runtime.c).
 C_FUNCTIONS = (
     "pow", "sin", "cos", "tanh", "sign", "abs", "dead_zone", "sat", "relu", "play", "bouc_wen",
@@ -124,10 +123,7 @@ def c_problems(model: Model) -> list[str]:
         problems.append(f"blocks {', '.join(kinds)} have no C form")
     if history_length(model) > _LIMIT:
         problems.append(f"the model reads more than {_LIMIT} samples back")
-    if isinstance(rep, ARX):
-        outs = set(model.output_names)
-        if any(s in outs and f.lag < 1 for t in rep.terms for f in t.factors for s in f.signals):
-            problems.append("an ARX term reads an output at lag 0 (an algebraic loop)")
+    # an ARX term reading an output at lag 0 cannot reach here: the schema refuses the model
     return problems
 
 
@@ -157,32 +153,25 @@ def _blocks(blocks: Sequence[Block], names: Sequence[str]) -> list[float]:
     return out
 
 
-#: Numbers per factor in the resource: src, col, lag, diff, src2, col2, code, power, scale,
-#: offset, param, param2 (``tk_load`` reads them in this order).
-_ROW = 12
-
-
 def _factors(model: Model, terms: Sequence[Term]) -> tuple[list[float], list[float], int]:
-    """``ptr`` and the factor rows; sources as the stepper resolves names (later wins)."""
-    rep = model.representation
+    """``ptr`` and the factor rows, 12 numbers each in the order ``tk_load`` reads them (src,
+    col, lag, diff, src2, col2, code, power, scale, offset, param, param2): the arrays of the
+    compiled kernels (:func:`tendonkit.simulate.flat_terms`), sources as the stepper resolves
+    names — a sparse map's states, then inputs (an input name wins); an ARX's inputs, then
+    outputs (an output name wins)."""
     ins, outs = list(model.input_names), list(model.output_names)
-    states = [s.name for s in model.states]
-    ptr, rows = [0.0], []
-
-    def where(name: str) -> tuple[int, int]:
-        if isinstance(rep, SparseMap):  # states, then inputs (an input name wins)
-            return (1, ins.index(name)) if name in ins else (0, states.index(name))
-        # inputs, then outputs (an output name wins)
-        return (1, outs.index(name)) if name in outs else (0, ins.index(name))
-
-    for t in terms:
-        for f in t.factors:
-            src, col = where(f.signal)
-            src2, col2 = where(f.minus) if f.minus else (-1, 0)
-            rows += [src, col, f.lag, f.diff, src2, col2, _FN_CODES[f.fn], f.power, f.scale,
-                     f.offset, f.param, f.param2]  # fmt: skip
-        ptr.append(float(len(rows) // _ROW))
-    return ptr, [float(v) for v in rows], len(rows) // _ROW
+    if isinstance(model.representation, SparseMap):
+        states = [s.name for s in model.states]
+        first, second = [n for n in states if n not in ins], ins
+        index = {n: i for i, n in enumerate(states)}
+    else:
+        first, second = [n for n in ins if n not in outs], outs
+        index = {n: i for i, n in enumerate(ins)}
+    flat = flat_terms(terms, {n: index[n] for n in first}, {n: i for i, n in enumerate(second)})
+    cols = (flat.src, flat.col, flat.lag, flat.diff, flat.src2, flat.col2, flat.code,
+            flat.power, flat.scale, flat.offset, flat.param, flat.param2)  # fmt: skip
+    rows = np.column_stack(cols).ravel() if len(flat.src) else np.zeros(0)
+    return [float(v) for v in flat.ptr], [float(v) for v in rows], len(flat.src)
 
 
 def model_resource(

@@ -36,7 +36,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from tendonkit.dataset import Dataset
-from tendonkit.diagnose import Context
+from tendonkit.diagnose import Context, Extension
 from tendonkit.plugins._arx_structure import PARSIMONY
 from tendonkit.schema import Model
 from tendonkit.terms import Factor, Term
@@ -73,6 +73,18 @@ class Pair(NamedTuple):
 SAME_AS_ONE = 0.95
 
 
+def velocity(y: np.ndarray, m: int) -> np.ndarray:
+    """``y[k] - y[k-m]`` (zero for the first ``m`` samples)."""
+    v = np.zeros_like(y)
+    v[m:] = y[m:] - y[:-m]
+    return v
+
+
+def both_signs(x: np.ndarray) -> bool:
+    """Whether ``x`` takes both signs, on more than 5 % of its samples each."""
+    return bool(np.mean(x > 0) > 0.05 and np.mean(x < 0) > 0.05)
+
+
 def difference(y: np.ndarray, outputs: Sequence[str], a: str, b: str) -> np.ndarray:
     """``y_a - y_b`` from the stacked outputs ``y`` (columns named by ``outputs``)."""
     return y[:, list(outputs).index(a)] - y[:, list(outputs).index(b)]
@@ -97,8 +109,7 @@ def output_pairs(data: Dataset) -> list[Pair]:
             continue
         same = np.nan_to_num(np.corrcoef(np.vstack([d, y[:, i], y[:, j]]))[0, 1:])
         if np.max(np.abs(same)) <= SAME_AS_ONE:
-            crosses = bool(np.mean(d > 0) > 0.05 and np.mean(d < 0) > 0.05)
-            out.append(Pair(a, b, float(d.mean()), sd, crosses))
+            out.append(Pair(a, b, float(d.mean()), sd, both_signs(d)))
     return out
 
 
@@ -117,8 +128,7 @@ def _probes(d: np.ndarray) -> list[np.ndarray]:
     """Nonlinear functions of a difference that a coupling's force follows — its cube, a gap's
     ``sat``, the sign of its velocity — each without its part along ``1`` and ``d``."""
     z = (d - d.mean()) / (d.std() or 1.0)
-    vel = np.zeros_like(z)
-    vel[3:] = z[3:] - z[:-3]
+    vel = velocity(z, 3)
     basis = np.column_stack([np.ones_like(z), z])
     out = []
     for p in (z**3, np.clip(z, -0.1, 0.1), np.sign(vel)):
@@ -130,7 +140,17 @@ def _probes(d: np.ndarray) -> list[np.ndarray]:
 def screened_pairs(ctx: Context) -> list[Pair]:
     """:func:`output_pairs` of the training data; beyond :data:`MAX_PAIRS`, the pairs whose
     probes (:func:`_probes`) the baseline's free-run training residual of any output follows
-    most closely (largest absolute correlation), in the pairs' order."""
+    most closely (largest absolute correlation), in the pairs' order.  Computed once per
+    context (several effects ask)."""
+    cache = getattr(ctx, "_cache", None)
+    if cache is None:
+        return _screened(ctx)
+    if "pairs" not in cache:
+        cache["pairs"] = _screened(ctx)
+    return list(cache["pairs"])
+
+
+def _screened(ctx: Context) -> list[Pair]:
     pairs = output_pairs(ctx.train)
     if len(pairs) <= MAX_PAIRS:
         return pairs
@@ -167,20 +187,28 @@ def select_pairs(
     ``between`` a list) kept only where it beats the best single pair (``between`` one
     label) by :data:`TOGETHER_MARGIN` of its training misfit; otherwise the best of the other
     candidates (a single pair, or a term of each output) is chosen."""
-    params, model, score, tried = ctx.select(cands)
-    if model is None or not isinstance(params.get("between"), list):
+
+    def together(c: tuple[dict[str, Any], Any]) -> bool:
+        return isinstance(c[0].get("between"), list)
+
+    # the others first, then every pair together against them: each candidate built once
+    params, model, score, tried = ctx.select([c for c in cands if not together(c)])
+    p_all, m_all, s_all, _ = ctx.select([c for c in cands if together(c)])
+    if m_all is None or not s_all > score:
         return params, model, score
-    scored = [t for t in tried if t.get("score") is not None and math.isfinite(t["score"])]
-    singles = [t for t in scored if isinstance(t["params"].get("between"), str)]
-    if not singles:
-        return params, model, score
-    one = max(singles, key=lambda t: t["score"])
-    if 100.0 - score < (1.0 - TOGETHER_MARGIN) * (100.0 - one["score"]):
-        return params, model, score
-    other = max(
-        (t for t in scored if not isinstance(t["params"].get("between"), list)),
-        key=lambda t: t["score"],
-    )
-    build = next(b for p, b in cands if p is other["params"])
-    p1, m1, s1, _ = ctx.select([(other["params"], build)])
-    return (p1, m1, s1) if m1 is not None else (params, model, score)
+    singles = [t["score"] for t in tried
+               if isinstance(t["params"].get("between"), str) and t.get("score") is not None]  # fmt: skip
+    one = max((v for v in singles if math.isfinite(v)), default=None)
+    if one is None or 100.0 - s_all < (1.0 - TOGETHER_MARGIN) * (100.0 - one):
+        return p_all, m_all, s_all
+    return params, model, score
+
+
+def best_extension(
+    ctx: Context,
+    cands: Sequence[tuple[dict[str, Any], Callable[[Dataset], Model]]],
+    description: str,
+) -> Extension | None:
+    """:meth:`Context.extension` of :func:`select_pairs`' choice."""
+    params, model, score = select_pairs(ctx, cands)
+    return ctx.extension(params, model, score, description)

@@ -26,7 +26,6 @@ from tendonkit.diagnose import (
     ResidualAnalysis,
     atom_test,
     drop_samples,
-    extend_with_terms,
     refit_with_input_blocks,
     simulate_all,
 )
@@ -653,8 +652,7 @@ class Backlash:
             cands.append((params, build))
         cands += self._between(ctx)
         # every pair together only where it earns its extra terms (_bodies.select_pairs)
-        params, model, score = _bodies.select_pairs(ctx, cands)
-        return ctx.extension(params, model, score, self.description)
+        return _bodies.best_extension(ctx, cands, self.description)
 
     def _between(self, ctx: Context) -> list[tuple[dict[str, Any], Callable[[Dataset], Model]]]:
         """A gap in a coupling between two bodies whose positions are both outputs, on every
@@ -673,10 +671,6 @@ class Backlash:
         for group in groups:
             for frac in self.between_fractions:
                 terms = [_bodies.pair_term(p, "sat", centre=c, param=frac) for p, _, c in group]
-
-                def build(data: Dataset, terms: list[Term] = terms) -> Model:
-                    return extend_with_terms(ctx.baseline, data, terms, refit=ctx.refit)
-
                 between = [p.label for p, _, _ in group]
                 params = {
                     "where": "between two outputs",
@@ -686,7 +680,7 @@ class Backlash:
                     "width": [frac * p.std for p, _, _ in group],
                     "terms": [t.label for t in terms],
                 }
-                cands.append((params, build))
+                cands.append((params, ctx.with_terms(terms)))
         return cands
 
     def signature(

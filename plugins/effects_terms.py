@@ -53,10 +53,7 @@ def _corr(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.sum(a * b) / den) if den > 0 else 0.0
 
 
-def _velocity(y: np.ndarray, m: int) -> np.ndarray:
-    v = np.zeros_like(y)
-    v[m:] = y[m:] - y[:-m]
-    return v
+_velocity = _bodies.velocity
 
 
 class _TermEffect:
@@ -71,19 +68,21 @@ class _TermEffect:
 
     def builders(self, ctx: Context) -> list[tuple[dict[str, Any], Callable[[Dataset], Model]]]:
         """Every candidate as ``(params, build(train) -> Model)``."""
-
-        def builder(terms: list[Term]) -> Callable[[Dataset], Model]:
-            return lambda d: extend_with_terms(ctx.baseline, d, terms, refit=ctx.refit)
-
-        return [
-            ({**p, "terms": [t.label for t in terms]}, builder(terms))
-            for p, terms in self.candidates(ctx)
-        ]
+        return _labelled(ctx, self.candidates(ctx))
 
     def extend(self, ctx: Context) -> Extension | None:
-        """Choose the candidate with the best training simulation fit."""
-        cands = self.builders(ctx)
-        return ctx.best_extension(cands, self.description) if cands else None
+        """Choose the candidate with the best training simulation fit; every pair of outputs
+        together only where it earns its extra terms (:func:`_bodies.select_pairs`)."""
+        return _bodies.best_extension(ctx, self.builders(ctx), self.description)
+
+
+def _labelled(
+    ctx: Context, candidates: list[tuple[dict[str, Any], list[Term]]]
+) -> list[tuple[dict[str, Any], Callable[[Dataset], Model]]]:
+    """Term candidates as ``(params with the terms' labels, build)``."""
+    return [
+        ({**p, "terms": [t.label for t in terms]}, ctx.with_terms(terms)) for p, terms in candidates
+    ]
 
 
 class CoulombFriction(_TermEffect):
@@ -123,20 +122,17 @@ class CoulombFriction(_TermEffect):
         test is made with the constant, because a system that integrates — EMPS, a drive in
         position control — drifts with a symmetric friction alone when its friction is not).
         """
-
-        def builder(terms: list[Term]) -> Callable[[Dataset], Model]:
-            return lambda d: extend_with_terms(ctx.baseline, d, terms, refit=ctx.refit)
-
-        cands = self.builders(ctx)
+        terms_of = self.candidates(ctx)
+        cands = self._with_play(ctx, _labelled(ctx, terms_of))
         proper = [c for c in cands if not c[0].get("asymmetric")]
         asym = [c for c in cands if c[0].get("asymmetric")]
         params, model, score, _ = ctx.select(proper)
         if asym:
             const: list[Term] = [Term()]
-            _, _, s0, _ = ctx.select([({}, builder(const))])
+            _, _, s0, _ = ctx.select([({}, ctx.with_terms(const))])
             with_const = [
-                (p, builder([*const, *terms]))
-                for p, terms in self.candidates(ctx)
+                (p, ctx.with_terms([*const, *terms]))
+                for p, terms in terms_of
                 if not p.get("asymmetric")
             ]
             _, _, s1, _ = ctx.select(with_const)
@@ -156,7 +152,12 @@ class CoulombFriction(_TermEffect):
         slow quasi-static experiment where ``sign(velocity)`` terms of a dynamic model do
         not.
         """
-        cands = super().builders(ctx)
+        return self._with_play(ctx, super().builders(ctx))
+
+    def _with_play(
+        self, ctx: Context, cands: list[tuple[dict[str, Any], Callable[[Dataset], Model]]]
+    ) -> list[tuple[dict[str, Any], Callable[[Dataset], Model]]]:
+        """``cands`` and the play-on-the-inputs candidates after them."""
         ustd = ctx.train.u.std(axis=0)
         for frac in self.play_fractions:
             blocks = [
@@ -220,8 +221,7 @@ class CoulombFriction(_TermEffect):
         # An output that is itself a speed (a tachometer, a flow): the friction force follows
         # the sign of the output, not of its difference.  Only for outputs that reverse (a
         # speed of one sign has no sign to follow).
-        reverses = [bool(np.mean(y[:, j] > 0) > 0.05 and np.mean(y[:, j] < 0) > 0.05)
-                    for j in range(y.shape[1])]  # fmt: skip
+        reverses = [_bodies.both_signs(y[:, j]) for j in range(y.shape[1])]
         if any(reverses):
             for q in self.speed_quantiles:
                 eps = np.quantile(np.abs(y), q, axis=0)
@@ -326,12 +326,6 @@ class NonlinearStiffness(_TermEffect):
             outs.append(({"structure": "between two outputs", "between": between,
                           "powers": [3], "about": "mean"}, terms))  # fmt: skip
         return outs
-
-    def extend(self, ctx: Context) -> Extension | None:
-        """The best training simulation fit; every pair together only where it earns its
-        extra terms against the best single pair (:func:`_bodies.select_pairs`)."""
-        params, model, score = _bodies.select_pairs(ctx, self.builders(ctx))
-        return ctx.extension(params, model, score, self.description)
 
     def signature(
         self, ctx: Context, baseline: Model, valid: Dataset, res: ResidualAnalysis

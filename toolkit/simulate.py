@@ -129,6 +129,15 @@ def play_operator(s: FloatArray, width: float, start: float | None = None) -> Fl
     return out
 
 
+def flat_terms(
+    terms: Sequence[Term], first: Mapping[str, int], second: Mapping[str, int]
+) -> _kernel.FlatTerms:
+    """``terms`` as the flat per-factor arrays the compiled kernels read — and the C runtime
+    of model FMUs: a signal named in ``first`` reads buffer 0 at that column, any other buffer
+    1 at its column in ``second``."""
+    return _kernel.flatten(terms, first, second)
+
+
 def transform_inputs(data: Dataset, blocks: Sequence[Block]) -> Dataset:
     """Apply input blocks to every experiment's inputs (what a model with them sees)."""
     exps = []

@@ -513,7 +513,9 @@ def feedthrough(model: Model, initial: bool = False) -> dict[str, list[str]]:
         if rep.terms and coef is not None:
             for i, term in enumerate(rep.terms):
                 for f in term.factors:
-                    for name in f.signals if f.lag == 0 else ():
+                    if f.lag:
+                        continue
+                    for name in f.signals:
                         if name in model.input_names:
                             direct[:, model.input_names.index(name)] |= coef[i] != 0
     out: dict[str, list[str]] = {}

@@ -146,14 +146,11 @@ class Factor:
         return (self.signal, self.minus) if self.minus else (self.signal,)
 
     def _z(self, get: Getter) -> FloatArray:
-        s = np.asarray(get(self.signal, self.lag), dtype=float)
-        if self.diff:
-            s = s - np.asarray(get(self.signal, self.lag + self.diff), dtype=float)
-        if self.minus:
-            r = np.asarray(get(self.minus, self.lag), dtype=float)
-            if self.diff:
-                r = r - np.asarray(get(self.minus, self.lag + self.diff), dtype=float)
-            s = s - r
+        def at(name: str) -> FloatArray:  # the signal at the lag (minus it `diff` further back)
+            v = np.asarray(get(name, self.lag), dtype=float)
+            return v - np.asarray(get(name, self.lag + self.diff), dtype=float) if self.diff else v
+
+        s = at(self.signal) - at(self.minus) if self.minus else at(self.signal)
         return (s - self.offset) * self.scale
 
     def value(self, z: FloatArray) -> FloatArray:
@@ -282,7 +279,7 @@ class Term:
                 if j != i:
                     rest = rest * v
             g = np.asarray(dz * rest)
-            for name, gi in ((f.signal, g), (f.minus, -g)) if f.minus else ((f.signal, g),):
+            for name, gi in zip(f.signals, (g, -g)):
                 grads[name] = grads[name] + gi if name in grads else gi
         return grads
 

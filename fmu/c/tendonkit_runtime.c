@@ -158,7 +158,7 @@ int tk_load(tk_model *m, const char *path, char *why, size_t nwhy) {
     m->store = (double *)calloc(need + 1, sizeof(double));
     m->bi = (tk_block *)calloc((size_t)m->nbi + 1, sizeof(tk_block));
     m->bo = (tk_block *)calloc((size_t)m->nbo + 1, sizeof(tk_block));
-    m->ptr = (int *)calloc((size_t)nt1 + 8 * (size_t)m->nf + (size_t)m->ny + 1, sizeof(int));
+    m->ptr = (int *)calloc((size_t)nt1 + 7 * (size_t)m->nf + (size_t)m->ny + 1, sizeof(int));
     if (!m->store || !m->bi || !m->bo || !m->ptr) {
         free(raw);
         tk_free(m);
@@ -195,7 +195,6 @@ int tk_load(tk_model *m, const char *path, char *why, size_t nwhy) {
         m->src2 = q; q += m->nf;
         m->col2 = q; q += m->nf;
         m->code = q; q += m->nf;
-        q += m->nf;
         m->outst = q;
     }
     next_array(&r, m->u0, (size_t)m->nu);

@@ -13,7 +13,7 @@ that can also see its signature directly in the validation data implements the o
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol, runtime_checkable
 
@@ -25,6 +25,8 @@ from ..identification import without_training_fit
 from ..metrics import fit
 from ..schema import Model
 from ..simulate import aligned, simulate
+from ..terms import Term
+from .extend import extend_with_terms
 from .findings import reshape_reason, reshapes
 from .residuals import ResidualAnalysis
 
@@ -138,6 +140,11 @@ class Context:
 
         with without_training_fit():
             return self.identifier.identify(data)
+
+    def with_terms(self, terms: Sequence[Term]) -> Callable[[Dataset], Model]:
+        """A candidate's builder: the baseline refitted on the data with the extra ``terms``
+        (:func:`~tendonkit.diagnose.extend.extend_with_terms`, the baseline's identifier)."""
+        return lambda d: extend_with_terms(self.baseline, d, terms, refit=self.refit)
 
     def score(self, model: Model) -> float:
         """Mean free-run fit of ``model`` on the training data (-inf if it diverges)."""

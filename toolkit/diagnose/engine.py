@@ -747,6 +747,13 @@ def _contest_possible(causes: set[str]) -> bool:
     return any(c in SPECIAL_CASES.get(g, ()) for c in causes for g in causes)
 
 
+def _as_good_a_shape(general: Finding, f: Finding | Trial, tie_ratio: float) -> bool:
+    """Whether ``f`` is a special case of the significant ``general`` cause that gains at
+    least ``tie_ratio`` of it: with the refinement it contests the general cause even when it
+    is not significant itself (:func:`_name_cause`)."""
+    return f.cause in SPECIAL_CASES.get(general.cause, ()) and f.gain >= tie_ratio * general.gain
+
+
 def _shape_may_contest(
     significant: Sequence[Finding], trials: Iterable[Trial], settings: Settings
 ) -> bool:
@@ -755,14 +762,8 @@ def _shape_may_contest(
     or, where the contest refines both, one that gains ``tie_ratio`` of it."""
     if _contest_possible({f.cause for f in significant}):
         return True
-    if not settings.refine:
-        return False
-    trials = list(trials)
-    return any(
-        t.cause in SPECIAL_CASES.get(g.cause, ()) and t.gain >= settings.tie_ratio * g.gain
-        for g in significant
-        for t in trials
-    )
+    trials = list(trials) if settings.refine else []
+    return any(_as_good_a_shape(g, t, settings.tie_ratio) for g in significant for t in trials)
 
 
 def _cannot_name(
@@ -1814,9 +1815,8 @@ def _name_cause(
         special += [
             f
             for f in findings
-            if f.cause in shapes
-            and not f.significant
-            and f.gain >= tie_ratio * best.gain
+            if not f.significant
+            and _as_good_a_shape(best, f, tie_ratio)
             and f.test.get("train_gain", 0.0) > 0.0  # as for any cause (adjust)
         ]
     if special:

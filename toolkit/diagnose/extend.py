@@ -105,12 +105,12 @@ def _extend_ss_by_refit(
     if not isinstance(frep, StateSpace) or frep.terms:
         return _extend_ss(model, rep, data, terms)
     y0 = frep.y0
+    E = frep.B[:, nu:].copy()
     if frep.u0 is not None and np.any(frep.u0[nu:] != 0):
         # An operating point of Θ (an identifier that removes the means) is a constant state
         # input b = -E θ0: with x' = x - (I - A)⁻¹ b the model is x'⁺ = A x' + B(u - u0) + Eθ,
         # y = C x' + D(u - u0) + y0 + C (I - A)⁻¹ b, the same outputs (the initial state is
         # estimated), so b moves into the output's operating point.
-        E = frep.B[:, nu:]
         try:
             shift = np.linalg.solve(np.eye(frep.A.shape[0]) - frep.A, -E @ frep.u0[nu:])
         except np.linalg.LinAlgError:  # an integrator: no steady state to move b to
@@ -125,7 +125,7 @@ def _extend_ss_by_refit(
             x0=None,
             K=None,
             terms=all_terms,
-            E=frep.B[:, nu:].copy(),
+            E=E,
             u0=None if frep.u0 is None else frep.u0[:nu].copy(),
             y0=y0,
         )

@@ -463,8 +463,8 @@ def evidence_notes(summary: dict[str, Any]) -> list[str]:
         )
     contest = best.get("test", {}).get("contest")
     if contest and not best["significant"]:
-        general = next((f for f in findings if f["effect"] in contest["between"]
-                        and f["effect"] != best["effect"]), None)  # fmt: skip
+        # the contest record lists the general cause first
+        general = next((f for f in findings if f["effect"] == contest["between"][0]), None)
         if general is not None:
             notes.append(
                 f"not significant on its own (p_adj = "

@@ -13,6 +13,7 @@ first-order map ``z+ = F(z, u)`` on the augmented state
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -50,20 +51,19 @@ def nonlinear_problems(model: Model) -> list[str]:
             )
     for b in model.output_blocks:
         problems.append(f"output block {b.kind!r} on {b.signal!r} is not supported by the MPC.")
-    uneven = _uneven_differences(model)
+    delay: dict[str, float] = {}
+    for b in model.input_blocks:
+        if b.kind == "delay":
+            delay[b.signal] = delay.get(b.signal, 0.0) + float(b.params["samples"])
+    uneven = _uneven_differences(getattr(model.representation, "terms", ()) or (), delay)
     if uneven:
         problems.append(uneven)
     return problems
 
 
-def _uneven_differences(model: Model) -> str:
-    """Why the factors (``minus``) whose two signals have different input delays cannot be
-    rolled out (empty when there are none)."""
-    delay: dict[str, float] = {}
-    for b in model.input_blocks:
-        if b.kind == "delay":
-            delay[b.signal] = delay.get(b.signal, 0.0) + float(b.params["samples"])
-    terms = getattr(model.representation, "terms", ()) or ()
+def _uneven_differences(terms: Sequence[Term], delay: Mapping[str, float]) -> str:
+    """Why the factors (``minus``) whose two signals have different input delays (``delay``,
+    samples per input) cannot be rolled out (empty when there are none)."""
     uneven = [
         f.label
         for t in terms
@@ -102,7 +102,7 @@ class SparseMapDynamics:
                 f"{model.name!r} has hysteresis terms (play, bouc_wen); the nonlinear MPC "
                 "linearises memoryless terms only."
             )
-        uneven = _uneven_differences(model)
+        uneven = _uneven_differences(rep.terms, delay)
         if uneven:
             raise OptionError(f"{model.name!r}: {uneven}")
         self.coef_T = np.asarray(rep.coefficients, dtype=float).T  # (nx, n_terms)

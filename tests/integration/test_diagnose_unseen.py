@@ -277,3 +277,61 @@ def test_a_coupling_between_two_bodies_is_found(effect, seed, tmp_path):
 
             html = write_report(d, valid, tmp_path / "report").read_text()
             assert "Named cause: backlash between theta_m-theta_l" in html
+
+
+def _tank_bench():  # type: ignore[no-untyped-def]
+    """``benchmarks/bench_diagnose_chain.py`` (its two-tank plant), loaded from its file."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[2] / "benchmarks" / "bench_diagnose_chain.py"
+    spec = importlib.util.spec_from_file_location("bench_diagnose_chain", path)
+    assert spec is not None and spec.loader is not None
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    return bench
+
+
+def test_an_effect_no_linear_model_follows_is_named_when_its_model_explains_the_data():
+    """Two slow tanks (time constants 200 and 300 s at 1 s) fed by a pump slewing at 0.035 V/s
+    (``bench_diagnose_chain.py --plant tanks --areas 20,30``, seed 822, one of the seeds the
+    rule was built on): no linear baseline follows the pump — its validation fit is below zero, which
+    alone names no cause — but the rate limit's model fits the validation data and closes
+    most of the baseline's training misfit, so the lag is named and the result says why
+    (docs/diagnose.md, step 6).  It was ``none`` before."""
+    bench = _tank_bench()
+    p = bench.draw("actuator_lag", 822, bench.TANK_RANGES)
+    train = bench.tanks("actuator_lag", p, 822, (20.0, 30.0))
+    valid = bench.tanks("actuator_lag", p, 1322, (20.0, 30.0))
+    d = diagnose(train, valid, max_causes=1)
+    assert d.cause == "actuator_lag" and d.unfit is None
+    explains = d.best.test["explains"]
+    assert explains["baseline_fit"] < 0 < 50 < explains["extended_fit"]
+    assert explains["training_gain"] >= 0.5 * explains["training_misfit"]
+    assert "the baseline alone does not explain" in render_diagnosis(d.to_dict())
+
+
+@pytest.mark.parametrize(
+    ("effect", "seed", "as_tested"),
+    [("static_nonlinearity", 822, ["static_nonlinearity"]), ("saturation", 821, None)],
+)
+def test_a_shape_contest_compares_the_models_handed_on(effect, seed, as_tested):
+    """The fast tanks (``bench_diagnose_chain.py --plant tanks``, time constants 20 and 30 s):
+    a pump curve's refined model diverges on the validation data, so the contest takes the
+    curve as tested, which beats a dead zone (it lost against ``-inf`` before); a pump clipped
+    at 6.1 V refined gains as much as the curve as tested (+13.72 against +13.76), and the
+    simpler shape is named — the general curve must gain ``min_gain`` more (docs/diagnose.md,
+    step 6)."""
+    bench = _tank_bench()
+    p = bench.draw(effect, seed, bench.TANK_RANGES)
+    train = bench.tanks(effect, p, seed, (2.0, 3.0))
+    valid = bench.tanks(effect, p, seed + 500, (2.0, 3.0))
+    d = diagnose(train, valid, max_causes=1)
+    assert d.cause == effect
+    contest = d.best.test["contest"]
+    assert contest["named"] == effect and "static_nonlinearity" in contest["between"]
+    if as_tested:
+        assert contest["kept_as_tested"] == as_tested
+    else:
+        gains = contest["refined_gains"]
+        assert gains["static_nonlinearity"] - 0.25 <= gains[effect] < gains["static_nonlinearity"]

@@ -420,6 +420,26 @@ class Diagnosis:
         return next((f for f in self.findings if f.cause != best.cause), None)
 
 
+def _as_tested(contest: dict[str, Any]) -> str:
+    """What a contest's gains are where a refined model was refused (its tested one kept),
+    and why a special case that gains a little less than its general curve is named."""
+    tested = contest.get("kept_as_tested") or []
+    out = (
+        f" ({' and '.join(tested)} as tested: refined by simulation error it simulated the "
+        "validation data worse, and the tested model is the one kept)"
+        if tested
+        else ""
+    )
+    gains, named = contest.get("refined_gains", {}), contest.get("named")
+    other = next((e for e in contest.get("between", []) if e != named), None)
+    if named in gains and other in gains and gains[named] < gains[other]:
+        out += (
+            "; the general curve gains less than min_gain more, which does not earn its extra "
+            "parameters"
+        )
+    return out
+
+
 def evidence_notes(summary: dict[str, Any]) -> list[str]:
     """Sentences on how the named cause was established, from :meth:`Diagnosis.to_dict`.
 
@@ -452,6 +472,15 @@ def evidence_notes(summary: dict[str, Any]) -> list[str]:
             f"(p_adj = {top.get('p_adjusted', top['p_value']):.2g})" + more + "."
         ]
     notes = []
+    explains = best.get("test", {}).get("explains")
+    if explains:
+        notes.append(
+            f"the baseline alone does not explain the validation data (fit "
+            f"{explains['baseline_fit']:.1f} %, no better than their mean); with "
+            f"{best['cause']} the model does ({explains['extended_fit']:.1f} %), and it closes "
+            f"{explains['training_gain']:.1f} of the baseline's {explains['training_misfit']:.1f} "
+            "points of misfit on the training data: the cause is what the baseline lacked."
+        )
     direct = best.get("test", {}).get("direct")
     if direct:
         notes.append(
@@ -472,7 +501,9 @@ def evidence_notes(summary: dict[str, Any]) -> list[str]:
                 f"(p_adj = {general.get('p_adjusted', general['p_value']):.2g}): a static curve "
                 f"is there, and refined by simulation error its shape as {best['cause']} gains "
                 f"{contest['refined_gains'][best['effect']]:+.2f} points against the general "
-                f"curve's {contest['refined_gains'][general['effect']]:+.2f}."
+                f"curve's {contest['refined_gains'][general['effect']]:+.2f}"
+                + _as_tested(contest)
+                + "."
             )
     held = best.get("test", {}).get("held_out") or {}
     decided = "p_route" in held and held["p_route"] * best["test"].get("routes", 1) <= (
@@ -496,7 +527,7 @@ def evidence_notes(summary: dict[str, Any]) -> list[str]:
             why = (
                 f"refined by simulation error, it gains "
                 f"{contest['refined_gains'][best['effect']]:+.2f} points against "
-                f"{contest['refined_gains'][top['effect']]:+.2f}"
+                f"{contest['refined_gains'][top['effect']]:+.2f}" + _as_tested(contest)
                 if contest
                 else "it is seen in the data, or the models were not refined"
             )

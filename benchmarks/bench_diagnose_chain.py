@@ -188,6 +188,8 @@ def case(shared: Any, job: tuple[str, int]) -> dict[str, Any]:
         "causes": list(d.causes),
         "right": d.cause == effect,
         "baseline": d.baseline_method,
+        "unfit": d.unfit is not None,
+        "explains": d.best.test.get("explains") if d.best is not None else None,
         "findings": [
             {"effect": f.effect, "gain": f.gain, "p_adjusted": f.p_adjusted} for f in d.findings[:3]
         ],

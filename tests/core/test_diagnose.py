@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 
 import numpy as np
 import pytest
@@ -700,7 +701,40 @@ def test_a_shape_that_gains_as_much_as_its_significant_general_curve_contests_it
     named.test["contest"]["kept_as_tested"] = ["static_nonlinearity"]
     summary = {"named_effect": "saturation", "findings": [named.to_dict(), curve.to_dict()]}
     (note,) = [n for n in evidence_notes(summary) if "on its own" in n]
-    assert "(static_nonlinearity as tested: refined by simulation error it simulated" in note
+    assert "(static_nonlinearity as tested: its refined model simulated the validation" in note
+
+
+@pytest.mark.parametrize(
+    ("extended_fit", "train_gain", "train_misfit", "significant", "named"),
+    [
+        (83.0, 34.2, 38.2, True, True),  # slow tanks 822: the slewing pump's rate limit
+        (47.3, 28.9, 39.9, True, True),  # slow tanks 801
+        (84.5, 0.16, 0.42, True, False),  # the tutorial's circles: a dead zone, 37 % of 0.42
+        (84.5, 0.20, 0.30, True, False),  # two thirds of a misfit at the noise floor: < min_gain
+        (-5.0, 34.2, 38.2, True, False),  # the extension does not explain the data either
+        (83.0, 34.2, 38.2, False, False),  # not significant
+        (83.0, math.inf, math.inf, True, False),  # a baseline that diverges on its training data
+    ],
+)
+def test_an_extension_explains_what_an_unfit_baseline_cannot(
+    extended_fit, train_gain, train_misfit, significant, named
+):
+    """An unfit baseline (validation fit <= 0) names no cause, unless the named extension is
+    significant, fits the validation data above 0 %, and closes at least half of the
+    baseline's training misfit and min_gain points of it (docs/diagnose.md, step 6)."""
+    from tendonkit.diagnose.engine import explains_the_data
+
+    f = dataclasses.replace(
+        _sig("actuator_lag", 100.0, 2), fit={"y": extended_fit}, significant=significant,
+        test={"train_gain": train_gain},
+    )  # fmt: skip
+    record = explains_the_data(f, -31.9, train_misfit, 0.25)
+    assert (record is not None) == named
+    if named:
+        assert record == {
+            "baseline_fit": -31.9, "extended_fit": extended_fit,
+            "training_misfit": train_misfit, "training_gain": train_gain,
+        }  # fmt: skip
 
 
 @pytest.mark.parametrize(

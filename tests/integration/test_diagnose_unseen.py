@@ -29,6 +29,7 @@ from scipy.signal import butter, lfilter
 from tendonkit.cli.diagnose import render_diagnosis
 from tendonkit.dataset import Dataset, Experiment
 from tendonkit.diagnose import diagnose
+from tendonkit.diagnose.findings import evidence_notes
 
 pytestmark = pytest.mark.slow
 
@@ -307,21 +308,22 @@ def test_an_effect_no_linear_model_follows_is_named_when_its_model_explains_the_
     assert d.cause == "actuator_lag" and d.unfit is None
     explains = d.best.test["explains"]
     assert explains["baseline_fit"] < 0 < 50 < explains["extended_fit"]
-    assert explains["training_gain"] >= 0.5 * explains["training_misfit"]
+    assert explains["training_gain"] > 30 and explains["training_misfit"] < 40
     assert "the baseline alone does not explain" in render_diagnosis(d.to_dict())
 
 
 @pytest.mark.parametrize(
-    ("effect", "seed", "as_tested"),
-    [("static_nonlinearity", 822, ["static_nonlinearity"]), ("saturation", 821, None)],
+    ("effect", "seed", "simpler"),
+    [("static_nonlinearity", 822, False), ("saturation", 821, True)],
 )
-def test_a_shape_contest_compares_the_models_handed_on(effect, seed, as_tested):
+def test_a_shape_contest_compares_the_models_handed_on(effect, seed, simpler):
     """The fast tanks (``bench_diagnose_chain.py --plant tanks``, time constants 20 and 30 s):
     a pump curve's refined model diverges on the validation data, so the contest takes the
     curve as tested, which beats a dead zone (it lost against ``-inf`` before); a pump clipped
-    at 6.1 V refined gains as much as the curve as tested (+13.72 against +13.76), and the
-    simpler shape is named — the general curve must gain ``min_gain`` more (docs/diagnose.md,
-    step 6)."""
+    at 6.1 V refined gains about as much as the curve as tested (+13.72 against +13.76), and
+    the simpler shape is named — the general curve must gain ``min_gain`` more
+    (docs/diagnose.md, step 6).  Both curves' refined models simulate the validation data
+    worse than as tested."""
     bench = _tank_bench()
     p = bench.draw(effect, seed, bench.TANK_RANGES)
     train = bench.tanks(effect, p, seed, (2.0, 3.0))
@@ -330,8 +332,11 @@ def test_a_shape_contest_compares_the_models_handed_on(effect, seed, as_tested):
     assert d.cause == effect
     contest = d.best.test["contest"]
     assert contest["named"] == effect and "static_nonlinearity" in contest["between"]
-    if as_tested:
-        assert contest["kept_as_tested"] == as_tested
-    else:
-        gains = contest["refined_gains"]
+    assert contest["kept_as_tested"] == ["static_nonlinearity"]
+    gains = contest["refined_gains"]
+    notes = " ".join(evidence_notes(d.to_dict()))
+    if simpler:  # named with the smaller gain: the curve did not earn its extra parameters
         assert gains["static_nonlinearity"] - 0.25 <= gains[effect] < gains["static_nonlinearity"]
+        assert "the general curve gains less than min_gain more" in notes
+    else:
+        assert gains[effect] > gains["dead_zone"] + 0.25

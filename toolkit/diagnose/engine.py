@@ -1601,27 +1601,15 @@ def conclude(
         base_fit = float(base.choice.get("selected_validation_fit", base_fit))
     if not base_fit > MIN_BASELINE_FIT:
         # Errors of a model that does not explain the data say nothing about one cause —
-        # unless the named extension explains them, and explains on the training data most of
-        # what the baseline misses there: then the effect is what the linear model lacked
-        # (a pump slewing at 0.035 V/s that no linear model follows: baseline -32 %, with
-        # the rate limit 83 %, training 62 -> 96 %).  Trained on one regime and validated on
-        # another, a clip that stops the extrapolation fits the validation data too, but it
-        # changes nothing on the training data (the tutorial's circles: a clip +0.09 and a
-        # dead zone +0.16 of a misfit of 0.42 points, the camera's noise) — a share of a misfit
-        # at the noise floor says nothing, so the gain must also be worth naming (min_gain).
-        train_misfit = 100.0 - mean_fit(base.model, train) if best is not None else math.inf
-        train_gain = float(best.test.get("train_gain", 0.0)) if best is not None else 0.0
-        if (
-            best is not None
-            and _mean(best.fit) > MIN_BASELINE_FIT
-            and train_gain >= max(EXPLAINED_SHARE * train_misfit, settings.min_gain)
-        ):
-            explains = {
-                "baseline_fit": base_fit,
-                "extended_fit": _mean(best.fit),
-                "training_misfit": train_misfit,
-                "training_gain": train_gain,
-            }
+        # unless the named extension explains them (:func:`explains_the_data`).
+        explains = (
+            explains_the_data(
+                best, base_fit, 100.0 - mean_fit(base.model, train), settings.min_gain
+            )
+            if best is not None
+            else None
+        )
+        if best is not None and explains is not None:
             findings = [
                 dataclasses.replace(f, test={**f.test, "explains": explains})
                 if f.effect == best.effect
@@ -1691,9 +1679,42 @@ def _direct_test(
 MIN_BASELINE_FIT = 0.0
 #: Below it, a significant extension that fits the validation data above it names its cause
 #: when it also closes at least this share of the baseline's training misfit (``100 - fit``),
-#: and at least ``min_gain`` points: the effect is what the baseline lacks, not a repair of its
-#: extrapolation (:func:`conclude`).
+#: and at least ``min_gain`` points (:func:`explains_the_data`).
 EXPLAINED_SHARE = 0.5
+
+
+def explains_the_data(
+    best: Finding, base_fit: float, train_misfit: float, min_gain: float
+) -> dict[str, float] | None:
+    """The record of a named extension that explains what an unfit baseline cannot, or None.
+
+    A baseline whose validation fit is at most :data:`MIN_BASELINE_FIT` names no cause from
+    its errors — unless the named finding is significant, its model fits the validation data
+    above that level, and on the training data it closes at least :data:`EXPLAINED_SHARE` of
+    the baseline's misfit (``train_misfit`` = 100 − the baseline's training fit) and at least
+    ``min_gain`` points: then the effect is what the linear model lacked to explain the data at
+    all (a pump slewing at 0.035 V/s that no linear model follows: baseline −32 %, with the
+    rate limit 83 %, closing 90 % of the training misfit).  Trained on one regime and validated
+    on another, a clip that stops a baseline's extrapolation fits the validation data again,
+    but it changes little on the training data (the tutorial's circles: a clip closes 0.09 and
+    a dead zone 0.16 of 0.42 points of misfit, the share decides); where the misfit itself is
+    at the noise floor, a share of it says nothing, and the gain must also be worth naming.
+    Infinite numbers (a baseline that diverges on its training data) never qualify.
+    """
+    train_gain = float(best.test.get("train_gain", 0.0))
+    extended = _mean(best.fit)
+    finite = all(math.isfinite(v) for v in (train_misfit, train_gain, extended, base_fit))
+    if not (finite and best.significant and extended > MIN_BASELINE_FIT):
+        return None
+    if train_gain < max(EXPLAINED_SHARE * train_misfit, min_gain):
+        return None
+    return {
+        "baseline_fit": base_fit,
+        "extended_fit": extended,
+        "training_misfit": train_misfit,
+        "training_gain": train_gain,
+    }
+
 
 #: A baseline whose training free-run error energy exceeds this multiple of a linear N4SID
 #: model's is treated as biased (:func:`check_baseline`).
@@ -1734,6 +1755,7 @@ def check_baseline(baseline: Model, train: Dataset, method: str) -> dict[str, An
     ratio = e_base / e_ref if e_ref > 0 else math.inf
     return {
         "reference": "n4sid",
+        "reference_options": {"offset": at_point},
         "requested_method": method,
         "error_ratio": ratio,
         "threshold": BIAS_RATIO,
@@ -1813,8 +1835,10 @@ def _refined_gain(
     """``(gain, as_tested)``: the validation gain of a finding's extension after its
     simulation-error refinement — or of the extension as tested (``as_tested`` True) where the
     refined one simulates the validation data more than ``min_gain`` points worse, diverges
-    or cannot be computed, as :func:`refine_named` keeps the tested one then: a contest
-    compares the models that would be handed on.  On the fast tanks (seed 822) the pump
+    or cannot be computed, as :func:`refine_named` keeps the tested one then.  The refinement
+    starts from the tested fit (step 7's held-out check and continued refinement are not run
+    here), so the contest compares the models step 7 would hand on as far as the validation
+    data can tell.  On the fast tanks (seed 822) the pump
     curve's refined model diverged on the validation data, and a dead zone won the contest
     against ``-inf``; the curve as tested gains +19.3 against the dead zone's +14.4."""
     if f.model is None:

@@ -424,9 +424,10 @@ def _as_tested(contest: dict[str, Any]) -> str:
     """What a contest's gains are where a refined model was refused (its tested one kept),
     and why a special case that gains a little less than its general curve is named."""
     tested = contest.get("kept_as_tested") or []
+    its = "their refined models" if len(tested) > 1 else "its refined model"
     out = (
-        f" ({' and '.join(tested)} as tested: refined by simulation error it simulated the "
-        "validation data worse, and the tested model is the one kept)"
+        f" ({' and '.join(tested)} as tested: {its} simulated the validation data worse or "
+        "could not be computed)"
         if tested
         else ""
     )
@@ -491,10 +492,12 @@ def evidence_notes(summary: dict[str, Any]) -> list[str]:
             "effect)."
         )
     contest = best.get("test", {}).get("contest")
+    told = False  # the contest's gains are said once
     if contest and not best["significant"]:
         # the contest record lists the general cause first
         general = next((f for f in findings if f["effect"] == contest["between"][0]), None)
         if general is not None:
+            told = True
             notes.append(
                 f"not significant on its own (p_adj = "
                 f"{best.get('p_adjusted', best['p_value']):.2g}), but {general['cause']} is "
@@ -522,7 +525,9 @@ def evidence_notes(summary: dict[str, Any]) -> list[str]:
     if larger:
         top = larger[0]
         p_adj = top.get("p_adjusted", top["p_value"])
-        if top["significant"] and best["cause"] in SPECIAL_CASES.get(top["cause"], ()):
+        if told and top["effect"] == contest["between"][0]:
+            pass  # the note above compared the two
+        elif top["significant"] and best["cause"] in SPECIAL_CASES.get(top["cause"], ()):
             contest = best.get("test", {}).get("contest")
             why = (
                 f"refined by simulation error, it gains "

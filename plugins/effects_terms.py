@@ -35,13 +35,14 @@ from tendonkit.errors import TendonkitError
 from tendonkit.hookspecs import hookimpl
 from tendonkit.identification import without_training_fit
 from tendonkit.output_error import free_parameters
+from tendonkit.output_error import refine as refine_by_simulation
 from tendonkit.plugins import _bodies
 from tendonkit.plugins._arx_structure import PARSIMONY as ARX_PARSIMONY
 from tendonkit.plugins._arx_structure import as_tuple as _as_tuple
 from tendonkit.plugins._arx_structure import cv_folds, cv_window, held_out_error
 from tendonkit.plugins._bla_split import best_split
 from tendonkit.plugins.arx import ARX as ArxOptions
-from tendonkit.schema import ARX, Block, Model
+from tendonkit.schema import ARX, Block, Model, StateSpace
 from tendonkit.simulate import transform_inputs
 from tendonkit.terms import Factor, Term
 
@@ -347,15 +348,32 @@ class NonlinearStiffness(_TermEffect):
 
 
 def _without_offset(ctx: Context) -> float | None:
-    """Training score of the baseline refitted without its constant (None if it has none)."""
+    """Training score of the baseline refitted without its constant (None if it has none).
+
+    An ARX is refitted without its offset.  A refined N4SID fallback identified around an
+    operating point (diagnose's check at the baseline's operating point) is identified again
+    by the same N4SID without it and refined the same way (a generic oscillator with a weight
+    at 0.01 s: the constant load was in the fallback's operating point, so it removed nothing
+    and the weight's angle dependence was never tried — a stiffness was named instead).
+    """
     rep = ctx.baseline.representation
-    if not isinstance(rep, ARX) or rep.offset is None:
-        return None
-    bare = ctx.baseline.replace(representation=dataclasses.replace(rep, offset=None))
     try:
-        return ctx.score(extend_with_terms(bare, ctx.train, []))
-    except (np.linalg.LinAlgError, ValueError, FloatingPointError, OverflowError):
+        if isinstance(rep, ARX) and rep.offset is not None:
+            bare = ctx.baseline.replace(representation=dataclasses.replace(rep, offset=None))
+            return ctx.score(extend_with_terms(bare, ctx.train, []))
+        n4sid: Any = getattr(ctx.identifier, "n4sid", None)  # a refined fallback's identifier
+        if isinstance(rep, StateSpace) and rep.has_offsets and getattr(n4sid, "offset", False):
+            with without_training_fit():
+                plain = dataclasses.replace(n4sid, offset=False).identify(ctx.train)
+            return ctx.score(refine_by_simulation(plain, ctx.train, max_nfev=REFINE_NFEV))
+    except (np.linalg.LinAlgError, ValueError, FloatingPointError, OverflowError, TendonkitError):
         return None
+    return None
+
+
+#: Evaluations of the refinement of a fallback identified without its operating point (the
+#: fallback baseline's own, docs/diagnose.md step 1).
+REFINE_NFEV = 30
 
 
 class Gravity(_TermEffect):
@@ -402,7 +420,7 @@ class Gravity(_TermEffect):
         # no load: < 1 % (robot, Duffing systems, linear systems).
         misfit = 100.0 - ctx.baseline_score
         supported = model is not None and 100.0 - score <= (1.0 - self.load_share) * misfit
-        without = _without_offset(ctx)
+        without = _without_offset(ctx) if len(cands) > 1 else None
         if without is not None:
             # The baseline has an operating point already (diagnose's automatic baseline
             # chooses one): the load is judged by what that constant does, the same share of

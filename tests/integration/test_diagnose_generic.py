@@ -50,12 +50,6 @@ MISSES = {
     "validation data 18.5 % (N4SID 8.8 % on training), and the stiffness terms fitted by "
     "equation error lose 7.7 points of its training simulation, so nothing is named (measured "
     "2026-11-26; an earlier record had backlash named)",
-    ("gravity", 0.01): "the automatic baseline is ARX(8, 8, 1) with an operating point, which "
-    "takes the load's constant part; sin and cos of the angle, fitted by equation error, add "
-    "+0.1 to its training simulation (85.6 -> 85.7 %), so the angle dependence is not "
-    "supported and nothing is named (nonlinear_stiffness +0.82, p_adj 0.014).  It was named "
-    "before only because delayest proposed a 43-sample dead time, whose model fell back to "
-    "N4SID (gravity +13.7 there); the cross-validation now drops that delay",
 }
 
 

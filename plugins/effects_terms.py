@@ -35,7 +35,6 @@ from tendonkit.errors import TendonkitError
 from tendonkit.hookspecs import hookimpl
 from tendonkit.identification import without_training_fit
 from tendonkit.output_error import free_parameters
-from tendonkit.output_error import refine as refine_by_simulation
 from tendonkit.plugins import _bodies
 from tendonkit.plugins._arx_structure import PARSIMONY as ARX_PARSIMONY
 from tendonkit.plugins._arx_structure import as_tuple as _as_tuple
@@ -352,28 +351,22 @@ def _without_offset(ctx: Context) -> float | None:
 
     An ARX is refitted without its offset.  A refined N4SID fallback identified around an
     operating point (diagnose's check at the baseline's operating point) is identified again
-    by the same N4SID without it and refined the same way (a generic oscillator with a weight
-    at 0.01 s: the constant load was in the fallback's operating point, so it removed nothing
-    and the weight's angle dependence was never tried — a stiffness was named instead).
+    without it by its identifier (``without_operating_point``; a generic oscillator with a
+    weight at 0.01 s: the constant load was in the fallback's operating point, so it removed
+    nothing and the weight's angle dependence was never tried — a stiffness was named).
     """
     rep = ctx.baseline.representation
+    bare_fallback = getattr(ctx.identifier, "without_operating_point", None)
     try:
         if isinstance(rep, ARX) and rep.offset is not None:
             bare = ctx.baseline.replace(representation=dataclasses.replace(rep, offset=None))
             return ctx.score(extend_with_terms(bare, ctx.train, []))
-        n4sid: Any = getattr(ctx.identifier, "n4sid", None)  # a refined fallback's identifier
-        if isinstance(rep, StateSpace) and rep.has_offsets and getattr(n4sid, "offset", False):
-            with without_training_fit():
-                plain = dataclasses.replace(n4sid, offset=False).identify(ctx.train)
-            return ctx.score(refine_by_simulation(plain, ctx.train, max_nfev=REFINE_NFEV))
+        if isinstance(rep, StateSpace) and rep.has_offsets and bare_fallback is not None:
+            plain = bare_fallback(ctx.train)
+            return None if plain is None else ctx.score(plain)
     except (np.linalg.LinAlgError, ValueError, FloatingPointError, OverflowError, TendonkitError):
         return None
     return None
-
-
-#: Evaluations of the refinement of a fallback identified without its operating point (the
-#: fallback baseline's own, docs/diagnose.md step 1).
-REFINE_NFEV = 30
 
 
 class Gravity(_TermEffect):

@@ -535,6 +535,16 @@ class RefinedFallback:
     def identify(self, data: Dataset) -> Model:
         return self.n4sid.identify(data)  # type: ignore[no-any-return]
 
+    def without_operating_point(self, data: Dataset) -> Model | None:
+        """The fallback identified on ``data`` without its operating point and refined as the
+        fallback baseline is (None when its N4SID has none): what the operating point's
+        constant does (the gravity effect judges a load by it).  Numerical failures raise."""
+        if not getattr(self.n4sid, "offset", False):
+            return None
+        with without_training_fit():
+            plain = dataclasses.replace(self.n4sid, offset=False).identify(data)
+        return refine_by_simulation(plain, data, max_nfev=REFINE_MAX_NFEV)
+
 
 def score_baseline(baseline: Model, valid: Dataset) -> Reference:
     """The baseline's validation simulation, fit, loss and residual analysis."""
@@ -1321,7 +1331,7 @@ def refine_named(
     y = aligned(refined, valid).y
     fit_now = dict(zip(refined.output_names, map(float, fit(y, simulate_all(refined, valid)))))
     before, after = _mean(tested), _mean(fit_now)
-    if not after >= before - settings.min_gain:  # a diverged refinement (nan) loses too
+    if not _keeps_refined(before, after, settings.min_gain):
         note = (
             f"not refined by simulation error: refined on the training data it simulated the "
             f"validation data worse (mean fit {before:.2f} -> {after:.2f} %), so the tested "
@@ -1330,6 +1340,13 @@ def refine_named(
         return with_note(model, note), build, tested
     structural = structure_builder(refined, identifier)
     return refined, structural if structural is not None else build, fit_now
+
+
+def _keeps_refined(tested: float, refined: float, min_gain: float) -> bool:
+    """Whether a refined extension is kept over the tested one: it simulates the validation
+    data at most ``min_gain`` points worse (fits or gains alike; a diverged refinement, nan or
+    -inf, loses)."""
+    return bool(refined >= tested - min_gain)
 
 
 #: Share of every training experiment held out to check that refining carries to new data.
@@ -1586,13 +1603,7 @@ def conclude(
         best = _decide_tie(findings, best, losses, settings, cross, encompassing)
     for key, records in (("contest", contests), ("encompassing", encompassing)):
         if best is not None and best.effect in records:
-            findings = [
-                dataclasses.replace(f, test={**f.test, key: records[f.effect]})
-                if f.effect == best.effect
-                else f
-                for f in findings
-            ]
-            best = next(f for f in findings if f.effect == best.effect)
+            findings, best = _recorded(findings, best.effect, key, records[best.effect])
     unfit = None
     base_fit = _mean(ref.fit)
     if base.choice and base.choice.get("dead_time_left_to_diagnosis"):
@@ -1602,21 +1613,14 @@ def conclude(
     if not base_fit > MIN_BASELINE_FIT:
         # Errors of a model that does not explain the data say nothing about one cause —
         # unless the named extension explains them (:func:`explains_the_data`).
+        misfit = 100.0 - mean_fit(base.model, train) if best is not None else math.inf
         explains = (
-            explains_the_data(
-                best, base_fit, 100.0 - mean_fit(base.model, train), settings.min_gain
-            )
+            explains_the_data(best, base_fit, misfit, settings.min_gain)
             if best is not None
             else None
         )
         if best is not None and explains is not None:
-            findings = [
-                dataclasses.replace(f, test={**f.test, "explains": explains})
-                if f.effect == best.effect
-                else f
-                for f in findings
-            ]
-            best = next(f for f in findings if f.effect == best.effect)
+            findings, best = _recorded(findings, best.effect, "explains", explains)
         else:
             unfit = (
                 f"the baseline's validation fit is {base_fit:.1f} %: it explains the "
@@ -1647,6 +1651,18 @@ def conclude(
         baseline_choice=base.choice,
         output_std={n: float(v) for n, v in zip(base.model.output_names, np.std(ref.y, axis=0))},
     )
+
+
+def _recorded(
+    findings: list[Finding], effect: str, key: str, record: dict[str, Any]
+) -> tuple[list[Finding], Finding]:
+    """``findings`` with ``record`` under ``test[key]`` of ``effect``'s finding, and that
+    finding."""
+    out = [
+        dataclasses.replace(f, test={**f.test, key: record}) if f.effect == effect else f
+        for f in findings
+    ]
+    return out, next(f for f in out if f.effect == effect)
 
 
 def _direct_test(
@@ -1848,7 +1864,7 @@ def _refined_gain(
         refined = mean_fit(model, valid) - _mean(ref.fit)
     except _NUMERICAL_ERRORS:
         return f.gain, True
-    return (refined, False) if refined >= f.gain - min_gain else (f.gain, True)
+    return (refined, False) if _keeps_refined(f.gain, refined, min_gain) else (f.gain, True)
 
 
 def _name_cause(

@@ -528,7 +528,6 @@ def evidence_notes(summary: dict[str, Any]) -> list[str]:
         if told and top["effect"] == contest["between"][0]:
             pass  # the note above compared the two
         elif top["significant"] and best["cause"] in SPECIAL_CASES.get(top["cause"], ()):
-            contest = best.get("test", {}).get("contest")
             why = (
                 f"refined by simulation error, it gains "
                 f"{contest['refined_gains'][best['effect']]:+.2f} points against "

@@ -71,7 +71,7 @@ FMI_HEADERS = (
     "fmi3PlatformTypes.h",
 )
 RESOURCE = "model.tkm"
-MAGIC, FORMAT = 7318.2026, 4.0  # tendonkit_runtime.h
+MAGIC, FORMAT = 7318.2026, 5.0  # tendonkit_runtime.h
 _LIMIT = 100_000  # the runtime's bound on counts and lags
 #: Part of the binaries' cache key: change it with the compiler commands of :func:`_compile`.
 _BUILD_RECIPE = "2"
@@ -95,6 +95,7 @@ _BLOCK_CODES = {
 #: The factor functions the C runtime implements (``fn()`` in tendonkit_runtime.c).
 C_FUNCTIONS = (
     "pow", "sin", "cos", "tanh", "sign", "abs", "dead_zone", "sat", "relu", "play", "bouc_wen",
+    "slew_lag",
 )  # fmt: skip
 #: Functions msvcrt.dll provides to the Windows build (no mingw runtime is linked).
 _MSVCRT = (
@@ -154,8 +155,8 @@ def _blocks(blocks: Sequence[Block], names: Sequence[str]) -> list[float]:
 
 
 def _factors(model: Model, terms: Sequence[Term]) -> tuple[list[float], list[float], int]:
-    """``ptr`` and the factor rows, 12 numbers each in the order ``tk_load`` reads them (src,
-    col, lag, diff, src2, col2, code, power, scale, offset, param, param2): the arrays of the
+    """``ptr`` and the factor rows, 13 numbers each in the order ``tk_load`` reads them (src,
+    col, lag, diff, src2, col2, code, power, scale, offset, param, param2, weight): the arrays of the
     compiled kernels (:func:`tendonkit.simulate.flat_terms`), sources as the stepper resolves
     names — a sparse map's states, then inputs (an input name wins); an ARX's inputs, then
     outputs (an output name wins)."""
@@ -169,7 +170,7 @@ def _factors(model: Model, terms: Sequence[Term]) -> tuple[list[float], list[flo
         index = {n: i for i, n in enumerate(ins)}
     flat = flat_terms(terms, {n: index[n] for n in first}, {n: i for i, n in enumerate(second)})
     cols = (flat.src, flat.col, flat.lag, flat.diff, flat.src2, flat.col2, flat.code,
-            flat.power, flat.scale, flat.offset, flat.param, flat.param2)  # fmt: skip
+            flat.power, flat.scale, flat.offset, flat.param, flat.param2, flat.weight)  # fmt: skip
     rows = np.column_stack(cols).ravel() if len(flat.src) else np.zeros(0)
     return [float(v) for v in flat.ptr], [float(v) for v in rows], len(flat.src)
 

@@ -6,7 +6,8 @@ them, and the block is attached to the model — so these extensions work for ev
 - ``input_delay``: a common extra delay of ``d`` samples on every input;
 - ``dead_zone``: inputs below a threshold have no effect (tendon slack, motor dead band);
 - ``saturation``: a clipped output (overflow, sensor range) or clipped inputs;
-- ``actuator_lag``: a first-order lag, optionally rate-limited, between command and plant;
+- ``actuator_lag``: a first-order lag, optionally rate-limited, between command and plant (or
+  in a loop with the load: ``slew_lag`` terms of the input minus a weighted output);
 - ``backlash``: play of a given width on the outputs (joint play between the driven and the
   measured part).
 """
@@ -33,7 +34,7 @@ from tendonkit.hookspecs import hookimpl
 from tendonkit.metrics import fit
 from tendonkit.plugins import _bodies
 from tendonkit.schema import ARX, Block, Model
-from tendonkit.simulate import aligned, play_operator, simulate_dataset
+from tendonkit.simulate import aligned, play_operator, simulate, simulate_dataset
 from tendonkit.terms import Factor, Term
 
 
@@ -475,6 +476,29 @@ class Saturation:
         }
 
 
+def _static_gains(model: Model, data: Dataset) -> np.ndarray | None:
+    """``K[j, m]``: how far output ``j`` of ``model`` settles per unit of input ``m``, from a
+    step of half the input's spread at the data's mean input (simulated: any representation,
+    terms included); None where an output does not settle or the simulation diverges."""
+    u, spread = data.u.mean(axis=0), data.u.std(axis=0)
+    n = min(max(len(data.u), 200), 4000)
+    base = simulate(model, np.tile(u, (n, 1)))
+    if not np.all(np.isfinite(base)):
+        return None
+    K = np.zeros((base.shape[1], len(u)))
+    for m in range(len(u)):
+        if spread[m] <= 0:
+            continue
+        step = np.tile(u, (n, 1))
+        step[:, m] += 0.5 * spread[m]
+        y = simulate(model, step) - base
+        tail = y[-n // 10 :]
+        if not np.all(np.isfinite(y)) or np.any(np.ptp(tail, axis=0) > 0.01 * np.abs(tail).max()):
+            return None
+        K[:, m] = y[-1] / (0.5 * spread[m])
+    return K
+
+
 class ActuatorLag:
     """The actuator follows its command with a lag (and a rate limit)."""
 
@@ -482,7 +506,9 @@ class ActuatorLag:
     cause = "actuator_lag"
     description = (
         "Actuator lag: every input passes a first-order lag (time constant τ), optionally "
-        "rate-limited, before it acts on the system."
+        "rate-limited, before it acts on the system; or the actuator's lag and rate limit act "
+        "in a loop with the load (its force also follows an output: a force controller on a "
+        "compliant transmission)."
     )
 
     #: Time constants tried, in samples (from one: a shorter lag of a zero-order-held input is a
@@ -493,8 +519,32 @@ class ActuatorLag:
     #: Then the best rate times 2 to these powers.
     refine = (-0.5, -0.25, 0.25, 0.5)
 
+    #: In a loop with the load: the share ``c`` of each input's static gain to its output that
+    #: flows back into the actuator (``g = -c / K``), the lag's time constant (samples) and
+    #: the step limit (a quantile of the command's |change per sample|) — tried on a coarse
+    #: grid, then one coordinate at a time around the best.
+    loop_shares = (0.25, 0.5, 1.0)
+    loop_taus = (4.0, 16.0)
+    loop_quantiles = (0.2, 0.5)
+
+    #: Share of the baseline's training misfit that the lag or rate limit on the inputs alone
+    #: must remove before its loop with the load is tried.  The loop's terms (a state per input
+    #: that the output feeds back into) are flexible enough to reshape other effects where no
+    #: lag is there to refine: on the robot plant with no lag they gained +0.6 to +1.7 points
+    #: for friction, play and a dead zone and +0.5 for the nominal plant with slack tendons
+    #: (named actuator_lag), where the lag alone removed 0.5 to 4.4 % of the misfit; with a
+    #: force-controller lag it removed 46 to 55 %.
+    loop_support = 0.1
+    #: Pattern search around the best grid point: the share and the time constant by factors
+    #: of these, the quantile by this step, until no neighbour is better (at most
+    #: ``loop_rounds`` rounds).
+    loop_factors = (2.0**0.5, 2.0)
+    loop_step = 0.15
+    loop_rounds = 4
+
     def extend(self, ctx: Context) -> Extension | None:
-        """First-order lags, then rate limits alone and combined with the best lag.
+        """First-order lags, then rate limits alone and combined with the best lag, then the
+        lag in a loop with the load (:meth:`_in_loop`) where the inputs' lag shows.
 
         Two stages keep the search small: the time constant is chosen first (training
         simulation fit), then rate limits at quantiles of ``|Δu|`` are tried alone and after
@@ -543,7 +593,109 @@ class ActuatorLag:
             best = ctx.select(rfine)
             if best[2] > score:
                 params, model, score = best[:3]
+        # the loop refines a lag the data show: only where a lag or a rate limit on the inputs
+        # alone removes `loop_support` of the baseline's training misfit
+        misfit = 100.0 - ctx.baseline_score
+        if model is not None and score - ctx.baseline_score >= self.loop_support * misfit:
+            loop = self._in_loop(ctx)
+            if loop[2] > score:
+                params, model, score = loop[:3]
         return ctx.extension(params, model, score, self.description)
+
+    def _in_loop(self, ctx: Context) -> tuple[dict[str, Any], Model | None, float, list[Any]]:
+        """Rate-limited lags whose actuator also feels the load: ``slew_lag`` terms.
+
+        A force-controlled actuator (a tendon's tension loop, a series-elastic joint) drives a
+        load that pushes back: the force it applies is the controller's state ``R`` plus the
+        load's reaction ``g·y``, and the controller moves ``R`` toward ``u - g·y`` at a limited
+        rate.  No block on the input alone follows that (it needs the output), and without the
+        rate limit it is linear (the baseline absorbs it); with it, ``R`` is a ``slew_lag``
+        factor of ``u - g·y`` entering at each of the baseline's input lags.  ``g`` is scaled
+        by the baseline's static gain ``K`` of the input on the output it moves most (relative
+        to that output's spread): ``g = -c / K``, ``c`` the share of the input's effect that
+        comes back through the load.  A coarse grid of ``c``, the time constant and the step
+        limit, then a pattern search (``c`` of every input together and of each on its own).
+        ARX baselines whose outputs settle (a static gain exists).
+        """
+        rep = ctx.baseline.representation
+        none: tuple[dict[str, Any], Model | None, float, list[Any]] = ({}, None, -np.inf, [])
+        if not isinstance(rep, ARX) or not ctx.train.inputs or not ctx.train.outputs:
+            return none
+        K = _static_gains(ctx.baseline, ctx.train)
+        if K is None:
+            return none  # it drifts (an integrating plant): no static gain to scale the loop by
+        ystd = np.maximum(ctx.train.y.std(axis=0), 1e-12)
+        du = np.abs(np.diff(ctx.train.u, axis=0))
+        ins, outs = list(ctx.train.inputs), list(ctx.train.outputs)
+        links = []
+        for m in range(len(ins)):
+            j = int(np.argmax(np.abs(K[:, m]) / ystd))
+            if K[j, m] != 0:
+                links.append((m, j, float(K[j, m])))
+        if not links:
+            return none
+
+        def candidate(c: tuple[float, ...], tau: float, q: float) -> tuple[dict[str, Any], Any]:
+            alpha = float(1.0 - np.exp(-1.0 / tau))
+            rate = np.quantile(du, q, axis=0)
+            weights = [-ci / k for ci, (_, _, k) in zip(c, links, strict=True)]
+            terms = [
+                Term(
+                    (
+                        Factor(
+                            ins[m],
+                            fn="slew_lag",
+                            lag=rep.nk[m] + i + 1,
+                            param=alpha,
+                            param2=float(max(rate[m], 1e-12)),
+                            minus=outs[j],
+                            weight=w,
+                        ),
+                    )
+                )
+                for (m, j, _), w in zip(links, weights, strict=True)
+                for i in range(rep.nb)
+            ]
+            params = {
+                "in_loop": True,
+                "loop_share": list(c),
+                "tau_s": tau * ctx.train.dt,
+                "rate_quantile": q,
+                "loop": {
+                    ins[m]: {"output": outs[j], "weight": w}
+                    for (m, j, _), w in zip(links, weights, strict=True)
+                },
+            }
+            return params, ctx.with_terms(terms)
+
+        n = len(links)
+        grid = [
+            ((c,) * n, t, q)
+            for c in self.loop_shares
+            for t in self.loop_taus
+            for q in self.loop_quantiles
+        ]
+        best = ctx.select(candidate(*g) for g in grid)
+        if best[1] is None:
+            return none
+        fc, ft = self.loop_factors
+        for _ in range(self.loop_rounds):
+            c = tuple(best[0]["loop_share"])
+            t, q = best[0]["tau_s"] / ctx.train.dt, best[0]["rate_quantile"]
+            near = [(tuple(x * f for x in c), t, q) for f in (fc, 1 / fc)]
+            if n > 1:
+                near += [
+                    (tuple(x * f if i == m else x for i, x in enumerate(c)), t, q)
+                    for m in range(n)
+                    for f in (fc, 1 / fc)
+                ]
+            near += [(c, t * ft, q), (c, t / ft, q)]
+            near += [(c, t, r) for r in (q - self.loop_step, q + self.loop_step) if 0 < r < 1]
+            step = ctx.select(candidate(*g) for g in near)
+            if not step[2] > best[2]:
+                break
+            best = step
+        return best
 
     def signature(
         self, ctx: Context, baseline: Model, valid: Dataset, res: ResidualAnalysis

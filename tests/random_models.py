@@ -32,9 +32,15 @@ def _factor(rng: np.random.Generator, names: list[str], min_lag: dict[str, int])
         diff=int(rng.choice([0, 0, 1, 2])),
         scale=float(rng.uniform(0.5, 2.0)),
         offset=float(rng.normal(0.0, 0.2)),
-        param=float(rng.uniform(0.0, 0.5)),
-        # a Bouc-Wen operator's second shape (the others ignore it)
-        param2=float(rng.uniform(-0.5, 0.5)) if fn == "bouc_wen" else 0.0,
+        param=float(rng.uniform(0.01, 0.5)),
+        # a Bouc-Wen operator's second shape, a slew lag's largest step (the others ignore it)
+        param2=(
+            float(rng.uniform(-0.5, 0.5))
+            if fn == "bouc_wen"
+            else (float(rng.uniform(0.05, 0.5)) if fn == "slew_lag" else 0.0)
+        ),
+        # the second signal's weight: a loop closed through it (an actuator on a compliant load)
+        weight=float(rng.choice([1.0, rng.uniform(0.5, 1.5)])) if minus else 1.0,
     )
 
 

@@ -30,9 +30,10 @@ IntArray = NDArray[np.int64]
 #: it); from ``play`` on they are hysteresis operators with a state.
 CODES = (
     "pow", "sin", "cos", "tanh", "sign", "abs", "dead_zone", "sat", "relu", "play", "bouc_wen",
+    "slew_lag",
 )  # fmt: skip
 _CODE = {name: i for i, name in enumerate(CODES)}
-PLAY, BOUC_WEN = _CODE["play"], _CODE["bouc_wen"]
+PLAY, BOUC_WEN, SLEW_LAG = _CODE["play"], _CODE["bouc_wen"], _CODE["slew_lag"]
 #: Integer exponents up to this are evaluated as repeated products ``((z·z)·z)…``, here and in
 #: the numpy reference (``terms._product_power``) in the same order, so a factor's value is the
 #: same number in both: ``pow`` costs about twenty products per element, and polynomial terms
@@ -46,7 +47,7 @@ class FlatTerms:
 
     ``src`` says which buffer a factor reads (0: the first, e.g. inputs; 1: the second, outputs
     or states), ``col`` its column, ``lag``/``diff`` how far back; ``src2``/``col2`` the
-    ``minus`` signal of a relative factor (``src2 = -1``: none).
+    ``minus`` signal of a relative factor (``src2 = -1``: none) and ``weight`` its weight.
     """
 
     ptr: IntArray
@@ -62,6 +63,7 @@ class FlatTerms:
     offset: FloatArray
     param: FloatArray
     param2: FloatArray
+    weight: FloatArray
 
     @property
     def n_terms(self) -> int:
@@ -71,7 +73,9 @@ class FlatTerms:
 
 def flatten(terms: Sequence[Any], first: Mapping[str, int], second: Mapping[str, int]) -> FlatTerms:
     """Flat arrays for ``terms`` reading signals by name from two buffers."""
-    rows: list[tuple[int, int, int, int, int, int, int, float, float, float, float, float]] = []
+    rows: list[
+        tuple[int, int, int, int, int, int, int, float, float, float, float, float, float]
+    ] = []
     ptr = [0]
 
     def where(name: str) -> tuple[int, int]:
@@ -83,15 +87,15 @@ def flatten(terms: Sequence[Any], first: Mapping[str, int], second: Mapping[str,
             src2, col2 = where(f.minus) if f.minus else (-1, 0)
             rows.append(
                 (src, col, f.lag, f.diff, src2, col2, _CODE[f.fn], float(f.power), f.scale,
-                 f.offset, f.param, f.param2)
+                 f.offset, f.param, f.param2, float(f.weight))
             )  # fmt: skip
         ptr.append(len(rows))
-    cols = list(zip(*rows, strict=True)) if rows else [()] * 12
+    cols = list(zip(*rows, strict=True)) if rows else [()] * 13
     i = [np.asarray(c, dtype=np.int64) for c in cols[:7]]
     x = [np.asarray(c, dtype=np.float64) for c in cols[7:]]
     return FlatTerms(
         np.asarray(ptr, dtype=np.int64), i[0], i[1], i[2], i[3], i[4], i[5], i[6], x[0], x[1],
-        x[2], x[3], x[4],
+        x[2], x[3], x[4], x[5],
     )  # fmt: skip
 
 
@@ -138,8 +142,9 @@ def _fn(code: int, z: float, power: float, param: float) -> float:  # pragma: no
 def hysteresis_step(code, z, param, param2, st):  # pragma: no cover - numba
     """One sample of a hysteresis operator: ``(value, d value / d z)``, its state ``st`` advanced.
 
-    ``st`` holds two numbers, NaN before the first sample: the play's output, or the Bouc-Wen
-    operator's previous ``z`` and its ``h`` (the reference is ``terms._step_stateful``).
+    ``st`` holds two numbers, NaN before the first sample: the play's or the slew lag's output,
+    or the Bouc-Wen operator's previous ``z`` and its ``h`` (the reference is
+    ``terms._step_stateful``).
     """
     a = st[0]
     if code == PLAY:
@@ -149,6 +154,14 @@ def hysteresis_step(code, z, param, param2, st):  # pragma: no cover - numba
         p = min(max(a, z - param), z + param)
         st[0] = p
         return p, 1.0 if p != a else 0.0
+    if code == SLEW_LAG:
+        if np.isnan(a):
+            st[0] = z
+            return z, 1.0
+        step = param * (z - a)
+        r = a + min(max(step, -param2), param2)
+        st[0] = r
+        return r, param if abs(step) < param2 else 0.0
     if np.isnan(a):  # Bouc-Wen, from h = 0
         st[0] = z
         st[1] = 0.0
@@ -182,7 +195,7 @@ def _at(buf, r, c, d):  # pragma: no cover - numba
 @njit(cache=True, nogil=True, inline="always")
 def _terms_at(  # pragma: no cover - numba
     a, b, kk, ptr, src, col, lag, diff, src2, col2, code, power, scale, offset, param, param2,
-    st, theta,
+    weight, st, theta,
 ):  # fmt: skip
     for t in range(ptr.shape[0] - 1):
         prod = 1.0
@@ -192,8 +205,10 @@ def _terms_at(  # pragma: no cover - numba
             # does a helper that takes both buffers (4.5x on an ARX with three terms)
             r, d = kk - lag[f], diff[f]
             s = _at(a, r, col[f], d) if src[f] == 0 else _at(b, r, col[f], d)
-            if src2[f] >= 0:  # relative to a second signal: (s - s_prev) - (q - q_prev)
-                s = s - (_at(a, r, col2[f], d) if src2[f] == 0 else _at(b, r, col2[f], d))
+            if src2[f] >= 0:  # relative to a second signal: (s - s_prev) - w·(q - q_prev)
+                s = s - weight[f] * (
+                    _at(a, r, col2[f], d) if src2[f] == 0 else _at(b, r, col2[f], d)
+                )
             z = (s - offset[f]) * scale[f]
             if code[f] >= PLAY:
                 prod *= hysteresis_step(code[f], z, param[f], param2[f], st[f])[0]
@@ -205,7 +220,7 @@ def _terms_at(  # pragma: no cover - numba
 @njit(cache=True, nogil=True)
 def arx_loop(  # pragma: no cover - numba
     U, Y, G, off, Acat, na, start, L, coef_t, ptr, src, col, lag, diff, src2, col2, code, power,
-    scale, offset, param, param2, st,
+    scale, offset, param, param2, weight, st,
 ):  # fmt: skip
     """``Y[k+L] = off + Σ_l G[l]·U[k+L-l] - Acat·[Y[k+L-1]; …; Y[k+L-na]] + coef_t·θ(k)``.
 
@@ -229,7 +244,7 @@ def arx_loop(  # pragma: no cover - numba
         if nt:
             _terms_at(
                 U, Y, kk, ptr, src, col, lag, diff, src2, col2, code, power, scale, offset, param,
-                param2, st, theta,
+                param2, weight, st, theta,
             )  # fmt: skip
         ok = True
         for i in range(ny):
@@ -303,7 +318,7 @@ def arx_linear_loop(U, Y, G, g0, off, Acat, na, start, L):  # pragma: no cover -
 @njit(cache=True, nogil=True)
 def ss_terms_loop(  # pragma: no cover - numba
     U, Y, u, x, A, B, C, D, E, L, ptr, src, col, lag, diff, src2, col2, code, power, scale,
-    offset, param, param2, st,
+    offset, param, param2, weight, st,
 ):  # fmt: skip
     """State space with terms: ``y = Cx + Du``, ``x⁺ = Ax + Bu + Eθ``; θ reads ``U`` and ``Y``."""
     N = u.shape[0]
@@ -321,7 +336,7 @@ def ss_terms_loop(  # pragma: no cover - numba
             Y[kk, i] = acc
         _terms_at(
             U, Y, kk, ptr, src, col, lag, diff, src2, col2, code, power, scale, offset, param,
-            param2, st, theta,
+            param2, weight, st, theta,
         )  # fmt: skip
         ok = True
         for i in range(n):
@@ -344,7 +359,7 @@ def ss_terms_loop(  # pragma: no cover - numba
 @njit(cache=True, nogil=True)
 def sparse_loop(  # pragma: no cover - numba
     U, X, coef, L, ptr, src, col, lag, diff, src2, col2, code, power, scale, offset, param,
-    param2, st,
+    param2, weight, st,
 ):  # fmt: skip
     """Sparse map ``x[k+1] = θ(k)ᵀ·coef``; θ reads inputs ``U`` and states ``X`` (in place)."""
     N = U.shape[0] - L
@@ -355,7 +370,7 @@ def sparse_loop(  # pragma: no cover - numba
         kk = k + L
         _terms_at(
             U, X, kk, ptr, src, col, lag, diff, src2, col2, code, power, scale, offset, param,
-            param2, st, theta,
+            param2, weight, st, theta,
         )  # fmt: skip
         ok = True
         for i in range(nx):
@@ -413,6 +428,7 @@ def run_terms(kernel, *args, flat: FlatTerms):  # type: ignore[no-untyped-def]
         flat.offset,
         flat.param,
         flat.param2,
+        flat.weight,
         np.full((max(flat.code.shape[0], 1), 2), np.nan),
     )
 

@@ -19,8 +19,9 @@ simulation; the Jacobian of an ARX's coefficients exact by forward sensitivities
 - blocks: every parameter but a delay's (a fractional delay's samples are continuous, but a
   change of its integer part is a change of structure) — dead-zone thresholds and centres,
   saturation limits, play widths, lag poles, rate limits;
-- the shapes of hysteresis operators in the terms (a ``play``'s half-width, a ``bouc_wen``
-  operator's ``param`` and ``param2``).
+- the shapes of the operators with a memory in the terms (a ``play``'s half-width, a
+  ``bouc_wen`` operator's ``param`` and ``param2``, a ``slew_lag``'s gain, largest step and
+  loop weight — shared by the lags of one operator: :func:`_shapes`).
 
 The initial state is estimated from each experiment's data at every evaluation (as
 ``simulate(..., initial="estimate")``).  The model as given is returned when no lower
@@ -94,6 +95,36 @@ def tied_terms(rep: ARX, outputs: Sequence[str]) -> list[tuple[int, int, int, fl
     return out
 
 
+def _shapes(terms: Sequence[Term]) -> list[tuple[list[tuple[int, int]], str]]:
+    """The shapes of the operators with a memory in ``terms``, as ``(places, key)``.
+
+    A play's half-width, a Bouc-Wen operator's two shapes, a slew lag's gain, largest step and
+    (in a loop) the weight of its second signal.  The slew lags of one signal with equal
+    shapes are one operator read at several lags (``R[k-1]``, ``R[k-2]``, …: an actuator's
+    state entering the dynamics through each input lag), so they share their parameters: a
+    key's ``places`` are every ``(term, factor)`` it sets.
+    """
+    out: list[tuple[list[tuple[int, int]], str]] = []
+    lags: dict[tuple[Any, ...], list[tuple[int, int]]] = {}
+    for t, term in enumerate(terms):
+        for j, f in enumerate(term.factors):
+            if not f.stateful:
+                continue
+            keys: tuple[str, ...]
+            if f.fn != "slew_lag":
+                keys = ("param",) if f.fn == "play" else ("param", "param2")
+                out += [([(t, j)], key) for key in keys]
+                continue
+            group = (f.signal, f.minus, f.scale, f.offset, f.param, f.param2, f.weight)
+            if group in lags:
+                lags[group].append((t, j))
+                continue
+            lags[group] = [(t, j)]
+            keys = ("param", "param2", "weight") if f.minus else ("param", "param2")
+            out += [(lags[group], key) for key in keys]
+    return out
+
+
 def _codec(model: Model, blocks: bool = True) -> tuple[FloatArray, Callable[[FloatArray], Model]]:
     """The free parameters of ``model`` as a vector, and the map back to a model."""
     rep = model.representation
@@ -133,14 +164,7 @@ def _codec(model: Model, blocks: bool = True) -> tuple[FloatArray, Callable[[Flo
         # a one-sided clip writes its open end as ±1e300: no limit, not a parameter
         and abs(b.params[name]) < 1e299
     ]
-    # the shapes of hysteresis operators (a play's half-width, a Bouc-Wen operator's two)
-    shapes = [
-        (t, j, key)
-        for t, term in enumerate(rep.terms)
-        for j, f in enumerate(term.factors)
-        if f.stateful
-        for key in (("param",) if f.fn == "play" else ("param", "param2"))
-    ]
+    shapes = _shapes(rep.terms)
     theta0 = np.concatenate(
         [arr[mask] for _, arr, mask in parts]
         + [
@@ -151,7 +175,10 @@ def _codec(model: Model, blocks: bool = True) -> tuple[FloatArray, Callable[[Flo
                 ],
                 dtype=float,
             ),
-            np.array([getattr(rep.terms[t].factors[j], key) for t, j, key in shapes], dtype=float),
+            np.array(
+                [getattr(rep.terms[at[0][0]].factors[at[0][1]], key) for at, key in shapes],
+                dtype=float,
+            ),
         ]
     )
 
@@ -167,16 +194,21 @@ def _codec(model: Model, blocks: bool = True) -> tuple[FloatArray, Callable[[Flo
         new_terms: tuple[Term, ...] = tuple(rep.terms)
         if shapes:
             terms = [list(term.factors) for term in rep.terms]
-            for k, (t, j, key) in enumerate(shapes):
+            for k, (at, key) in enumerate(shapes):
                 value = float(theta[len(theta) - len(shapes) + k])
-                if terms[t][j].fn == "play":
-                    value = abs(value)  # a half-width
-                f = terms[t][j]
-                terms[t][j] = (
-                    dataclasses.replace(f, param=value)
-                    if key == "param"
-                    else dataclasses.replace(f, param2=value)
-                )
+                fn = terms[at[0][0]][at[0][1]].fn
+                if fn == "play" or (fn == "slew_lag" and key == "param2"):
+                    value = abs(value)  # a half-width, a largest step
+                elif fn == "slew_lag" and key == "param":
+                    value = min(max(value, 1e-6), 1.0)  # a gain per sample
+                for t, j in at:
+                    f = terms[t][j]
+                    if key == "param":
+                        terms[t][j] = dataclasses.replace(f, param=value)
+                    elif key == "param2":
+                        terms[t][j] = dataclasses.replace(f, param2=value)
+                    else:
+                        terms[t][j] = dataclasses.replace(f, weight=value)
             new_terms = tuple(Term(tuple(fs)) for fs in terms)
         if isinstance(rep, StateSpace):
             r: Any = dataclasses.replace(rep, **new)

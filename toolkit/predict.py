@@ -93,7 +93,7 @@ def _predict_ss_terms(
     ct = CompiledTerms(rep.terms)
     if ct.stateful:
         raise SimulationError(
-            f"{k}-step prediction of a state space with hysteresis terms (play, bouc_wen) would "
+            f"{k}-step prediction of a state space with terms with a memory (play, bouc_wen, slew_lag) would "
             "need their state estimated at every sample; use k=1 or a simulation."
         )
     L = max((t.max_lag for t in rep.terms), default=1)

@@ -42,11 +42,12 @@ FUNCTIONS: dict[str, str] = {
     "relu": "max(z-param, 0)",
     "play": "play operator of half-width param along time (stateful)",
     "bouc_wen": "Bouc-Wen state h += dz - param*|dz|*h - param2*dz*|h| along time (stateful)",
+    "slew_lag": "r += clip(param*(z - r), -param2, param2) along time (stateful)",
 }
 #: Functions with a memory: their value at a sample depends on the factor's earlier samples.
 #: They are hysteresis operators, run along time from the first sample a simulator evaluates
-#: (play: from ``z`` itself; Bouc-Wen: from ``h = 0``); see :meth:`Factor.value`.
-STATEFUL = frozenset({"play", "bouc_wen"})
+#: (play and slew lag: from ``z`` itself; Bouc-Wen: from ``h = 0``); see :meth:`Factor.value`.
+STATEFUL = frozenset({"play", "bouc_wen", "slew_lag"})
 
 _FN_CODES = {name: i for i, name in enumerate(FUNCTIONS)}
 assert tuple(FUNCTIONS) == CODES, "the compiled kernel's function codes follow FUNCTIONS"
@@ -74,26 +75,34 @@ class Factor:
         ``s[k-lag] - s[k-lag-m]`` (a velocity estimate that averages noise for larger ``m``).
     minus : str
         Empty for the signal itself; the name of a second signal ``r`` for the difference
-        ``s - r`` (with ``diff``: ``(s[k-lag] - s[k-lag-m]) - (r[k-lag] - r[k-lag-m])``) — a
-        coupling *between two bodies*: the stretch of the spring or the play between them, or
-        their relative velocity.
+        ``s - weight·r`` (with ``diff``: ``(s[k-lag] - s[k-lag-m]) - weight·(r[k-lag] -
+        r[k-lag-m])``) — a coupling *between two bodies*: the stretch of the spring or the play
+        between them, or their relative velocity; or a loop closed through the second signal
+        (an actuator whose force also follows the load's position: ``weight`` its stiffness).
+    weight : float
+        The ``minus`` signal's weight (1 for a difference between two bodies).
     scale, offset : float
         Affine normalisation applied before ``fn``.
     param : float
         Width of a dead zone, level of a saturation, knee of a relu, half-width of a play,
         the first shape parameter of a Bouc-Wen operator.
     param2 : float
-        The second shape parameter of a Bouc-Wen operator (unused by the other functions).
+        The second shape parameter of a Bouc-Wen operator, the largest step of a slew lag
+        (unused by the other functions).
 
     Notes
     -----
-    ``play`` and ``bouc_wen`` are *hysteresis operators* (:data:`STATEFUL`): their value at a
-    sample depends on the factor's past, so a simulator carries their state from step to step
-    and a whole-record evaluation runs them along the record.  The play follows ``z`` with a
+    ``play``, ``bouc_wen`` and ``slew_lag`` are operators with a memory (:data:`STATEFUL`;
+    the first two hysteresis operators): their value at a sample depends on the factor's past,
+    so a simulator carries their state from step to step and a whole-record evaluation runs
+    them along the record.  The play follows ``z`` with a
     lag of at most ``param`` (backlash; a sum of plays of several widths is a
     Prandtl-Ishlinskii operator); the Bouc-Wen state obeys the discretised
     ``dh = dz - param·|dz|·h - param2·dz·|h|`` (Bouc-Wen with exponent 1 and unit initial
-    stiffness; ``h`` saturates at ``±1/(param + param2)`` when that is positive).
+    stiffness; ``h`` saturates at ``±1/(param + param2)`` when that is positive).  The slew
+    lag is a first-order lag of pole ``1 - param`` whose step is at most ``param2`` (a
+    rate-limited actuator: ``r += clip(param·(z - r), ±param2)``, its value ``r`` after the
+    step), started at ``z``.
     """
 
     signal: str
@@ -106,6 +115,7 @@ class Factor:
     param: float = 0.0
     param2: float = 0.0
     minus: str = ""
+    weight: float = 1.0
 
     @property
     def stateful(self) -> bool:
@@ -118,6 +128,8 @@ class Factor:
         name = self.signal if self.lag == 0 else f"{self.signal}[k-{self.lag}]"
         if self.minus:
             other = self.minus if self.lag == 0 else f"{self.minus}[k-{self.lag}]"
+            if self.weight != 1.0:
+                other = f"{self.weight:g}*{other}"
             name = f"({name}-{other})"
         if self.diff:
             name = f"Δ{name}" if self.diff == 1 else f"Δ{self.diff}{name}"
@@ -131,8 +143,8 @@ class Factor:
             return name if self.power == 1 else f"{name}^{self.power}"
         if self.fn in ("dead_zone", "sat", "relu", "play"):
             return f"{self.fn}({name};{self.param:g})"
-        if self.fn == "bouc_wen":
-            return f"bouc_wen({name};{self.param:g},{self.param2:g})"
+        if self.fn in ("bouc_wen", "slew_lag"):
+            return f"{self.fn}({name};{self.param:g},{self.param2:g})"
         return f"{self.fn}({name})"
 
     @property
@@ -150,7 +162,7 @@ class Factor:
             v = np.asarray(get(name, self.lag), dtype=float)
             return v - np.asarray(get(name, self.lag + self.diff), dtype=float) if self.diff else v
 
-        s = at(self.signal) - at(self.minus) if self.minus else at(self.signal)
+        s = at(self.signal) - self.weight * at(self.minus) if self.minus else at(self.signal)
         return (s - self.offset) * self.scale
 
     def value(self, z: FloatArray) -> FloatArray:
@@ -200,6 +212,7 @@ class Factor:
             ("param", 0.0),
             ("param2", 0.0),
             ("minus", ""),
+            ("weight", 1.0),
         ):
             val = getattr(self, key)
             if val != default:
@@ -266,7 +279,7 @@ class Term:
 
         Returns a mapping ``signal name -> dTerm/dsignal[k]``.  Factors on delayed signals are
         constants here; a differenced factor depends on ``s[k]`` with derivative ``+1 * scale``,
-        a relative one on its ``minus`` signal with ``-1 * scale``.
+        a relative one on its ``minus`` signal with ``-weight * scale``.
         """
         values = [f.evaluate(get) for f in self.factors]
         grads: dict[str, FloatArray] = {}
@@ -279,7 +292,7 @@ class Term:
                 if j != i:
                     rest = rest * v
             g = np.asarray(dz * rest)
-            for name, gi in zip(f.signals, (g, -g)):
+            for name, gi in zip(f.signals, (g, -f.weight * g)):
                 grads[name] = grads[name] + gi if name in grads else gi
         return grads
 
@@ -297,7 +310,8 @@ def term_matrix(terms: Sequence[Term], get: Getter, n: int) -> FloatArray:
 
 
 _FACTOR_KEYS = {
-    "signal", "fn", "power", "lag", "diff", "scale", "offset", "param", "param2", "minus"
+    "signal", "fn", "power", "lag", "diff", "scale", "offset", "param", "param2", "minus",
+    "weight",
 }  # fmt: skip
 #: Bounds on a factor read from a file: lags as a delay's (100,000 samples), powers to 64.
 MAX_TERM_LAG = 100_000
@@ -349,7 +363,13 @@ def factor_from_dict(data: Any, where: str, problems: list[str]) -> Factor | Non
         else:
             ints[key] = val
     floats: dict[str, float] = {}
-    for key, fdefault in (("scale", 1.0), ("offset", 0.0), ("param", 0.0), ("param2", 0.0)):
+    for key, fdefault in (
+        ("scale", 1.0),
+        ("offset", 0.0),
+        ("param", 0.0),
+        ("param2", 0.0),
+        ("weight", 1.0),
+    ):
         val = data.get(key, fdefault)
         if isinstance(val, bool) or not isinstance(val, int | float) or not _finite(val):
             problems.append(f"{where}.{key}: expected a finite number, found {val!r}.")
@@ -359,6 +379,12 @@ def factor_from_dict(data: Any, where: str, problems: list[str]) -> Factor | Non
     if ok and fn == "play" and floats["param"] < 0:
         problems.append(
             f"{where}.param: a play's half-width must be >= 0, found {floats['param']!r}."
+        )
+        ok = False
+    if ok and fn == "slew_lag" and not (0.0 < floats["param"] <= 1.0 and floats["param2"] > 0):
+        problems.append(
+            f"{where}: a slew lag's param (its gain per sample) must be in (0, 1] and its param2 "
+            f"(its largest step) > 0, found {floats['param']!r} and {floats['param2']!r}."
         )
         ok = False
     if not ok:
@@ -416,6 +442,7 @@ class CompiledTerms:
         self._offset = np.zeros((nt, mf))
         self._param = np.zeros((nt, mf))
         self._param2 = np.zeros((nt, mf))
+        self._weight = np.ones((nt, mf))
         for i, t in enumerate(self.terms):
             for j, f in enumerate(t.factors):
                 self._cur[i, j] = index[(f.signal, f.lag)]
@@ -433,6 +460,7 @@ class CompiledTerms:
                 self._offset[i, j] = f.offset
                 self._param[i, j] = f.param
                 self._param2[i, j] = f.param2
+                self._weight[i, j] = f.weight
         self._anydiff, self._anyminus = bool(self._hasdiff.any()), bool(self._hasminus.any())
         stateful_codes = [_FN_CODES[name] for name in STATEFUL]
         # one group per function (and per exponent for powers: evaluating a group of equal
@@ -479,7 +507,7 @@ class CompiledTerms:
         """
         if z.ndim > 3:
             raise SchemaError(
-                "Hysteresis operators (play, bouc_wen) are evaluated one step or one record at "
+                "Operators with a memory (play, bouc_wen, slew_lag) are evaluated one step or one record at "
                 f"a time, not on a batch of shape {z.shape[2:]}."
             )
         for i, j, fn in self._memory:
@@ -509,7 +537,7 @@ class CompiledTerms:
             r = values[self._cur2]
             if self._anydiff:
                 r = r - np.where(_expand(self._hasdiff, r), values[self._prev2], 0.0)
-            z = z - np.where(_expand(self._hasminus, z), r, 0.0)
+            z = z - np.where(_expand(self._hasminus, z), _expand(self._weight, r) * r, 0.0)
         return (z - _expand(self._offset, z)) * _expand(self._scale, z)
 
     def evaluate(self, values: FloatArray, commit: bool = True) -> FloatArray:
@@ -537,7 +565,8 @@ class CompiledTerms:
         """Derivatives of every term with respect to every key, shape ``(n_terms, n_keys, *batch)``.
 
         Differenced factors contribute ``+scale`` to their current key and ``-scale`` to their
-        previous one; a relative factor (``minus``) the opposite to its second signal's keys.
+        previous one; a relative factor (``minus``) the opposite, times its ``weight``, to its
+        second signal's keys.
         ``sign`` and the kinks of ``abs``, ``dead_zone``, ``sat`` and ``relu`` use their
         derivative almost everywhere.
         """
@@ -566,9 +595,10 @@ class CompiledTerms:
                 if self._hasdiff[r, j]:
                     jac[r, self._prev[r, j]] -= d[r]
                 if self._hasminus[r, j]:
-                    jac[r, self._cur2[r, j]] -= d[r]
+                    w = self._weight[r, j]
+                    jac[r, self._cur2[r, j]] -= w * d[r]
                     if self._hasdiff[r, j]:
-                        jac[r, self._prev2[r, j]] += d[r]
+                        jac[r, self._prev2[r, j]] += w * d[r]
         return jac
 
 
@@ -577,8 +607,8 @@ def _step_stateful(
 ) -> tuple[float, float, tuple[float, float]]:
     """One sample of a hysteresis operator: ``(value, d value / d z, new state)``.
 
-    The state is two numbers, NaN before the first sample: the play's output (and nothing),
-    or the Bouc-Wen operator's previous ``z`` and its ``h``.
+    The state is two numbers, NaN before the first sample: the play's or the slew lag's
+    output (and nothing), or the Bouc-Wen operator's previous ``z`` and its ``h``.
     """
     z, a, b = float(z), float(state[0]), float(state[1])
     if fn == "play":
@@ -586,6 +616,12 @@ def _step_stateful(
             return z, 1.0, (z, 0.0)
         p = min(max(a, z - param), z + param)
         return p, float(p != a), (p, 0.0)
+    if fn == "slew_lag":
+        if math.isnan(a):
+            return z, 1.0, (z, 0.0)
+        step = param * (z - a)
+        r = a + min(max(step, -param2), param2)
+        return r, param if abs(step) < param2 else 0.0, (r, 0.0)
     if math.isnan(a):  # bouc_wen: starts from h = 0
         return 0.0, 1.0, (z, 0.0)
     d = z - a
@@ -692,6 +728,7 @@ def scalar_evaluator(ct: CompiledTerms) -> Callable[..., list[float]]:
                     prev,
                     cur2,
                     prev2,
+                    f.weight,
                     f.fn,
                     f.power,
                     f.scale,
@@ -729,10 +766,23 @@ def scalar_evaluator(ct: CompiledTerms) -> Callable[..., list[float]]:
         out = []
         for factors in spec:
             prod = 1.0
-            for cur, prev, cur2, prev2, fn, power, scale, offset, param, param2, mem in factors:
+            for (
+                cur,
+                prev,
+                cur2,
+                prev2,
+                weight,
+                fn,
+                power,
+                scale,
+                offset,
+                param,
+                param2,
+                mem,
+            ) in factors:
                 z = v[cur] - v[prev] if prev >= 0 else v[cur]
                 if cur2 >= 0:
-                    z = z - (v[cur2] - v[prev2] if prev2 >= 0 else v[cur2])
+                    z = z - weight * (v[cur2] - v[prev2] if prev2 >= 0 else v[cur2])
                 if mem >= 0:
                     st = ct.state[where[mem]]
                     val, _, new = _step_stateful(fn, (z - offset) * scale, st, param, param2)

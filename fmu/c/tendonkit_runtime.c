@@ -145,7 +145,7 @@ int tk_load(tk_model *m, const char *path, char *why, size_t nwhy) {
     /* every array below must be far from int and memory limits: a resource asking for more
      * is corrupt (this also keeps the int offsets of the state layout from overflowing) */
     if ((double)m->H * (m->nu + m->ny + m->nx) + (double)m->nx * (m->nx + m->nu + m->nt) +
-            (double)m->ny * (m->nx + m->nu) + 14.0 * m->nf + (double)m->nt * (m->ny + 1) >
+            (double)m->ny * (m->nx + m->nu) + 15.0 * m->nf + (double)m->nt * (m->ny + 1) >
         MAX_VALUES)
         goto bad;
 
@@ -153,7 +153,7 @@ int tk_load(tk_model *m, const char *path, char *why, size_t nwhy) {
            + (size_t)m->nx * m->nx + (size_t)m->nx * m->nu + (size_t)m->ny * m->nx
            + (size_t)m->ny * m->nu + (size_t)m->nx + (size_t)m->nx * m->nt /* A B C D x0 E */
            + (size_t)m->nt * m->nx                                       /* coef */
-           + 5 * (size_t)m->nf                                          /* power..param2 */
+           + 6 * (size_t)m->nf                                          /* power..weight */
            + (size_t)m->nu + (size_t)m->ny + (size_t)m->nt + (size_t)m->nx; /* ub yraw theta xn */
     m->store = (double *)calloc(need + 1, sizeof(double));
     m->bi = (tk_block *)calloc((size_t)m->nbi + 1, sizeof(tk_block));
@@ -180,6 +180,7 @@ int tk_load(tk_model *m, const char *path, char *why, size_t nwhy) {
         m->offset = p; p += m->nf;
         m->param = p; p += m->nf;
         m->param2 = p; p += m->nf;
+        m->weight = p; p += m->nf;
         m->ub = p; p += m->nu;
         m->yraw = p; p += m->ny;
         m->theta = p; p += m->nt;
@@ -213,12 +214,13 @@ int tk_load(tk_model *m, const char *path, char *why, size_t nwhy) {
         m->fdiff[k] = next_int(&r, 0, m->lag);
         m->src2[k] = next_int(&r, -1, 1);
         m->col2[k] = next_int(&r, 0, LIMIT);
-        m->code[k] = next_int(&r, 0, 10);
+        m->code[k] = next_int(&r, 0, 11);
         m->power[k] = next(&r);
         m->scale[k] = next(&r);
         m->offset[k] = next(&r);
         m->param[k] = next(&r);
         m->param2[k] = next(&r);
+        m->weight[k] = next(&r);
         if (m->flag[k] + m->fdiff[k] > m->lag) r.bad = 1;
     }
     if (r.bad) goto bad;
@@ -525,14 +527,20 @@ static double reading(tk_model *m, int src, int c, int f, const double *ub) {
     return m->fdiff[f] ? v - read(m, src, c, m->flag[f] + m->fdiff[f], ub) : v;
 }
 
-/* One step of a hysteresis operator (code 9 play, 10 Bouc-Wen; tendonkit.terms._step_stateful)
- * from its state st (NaN: not started); the new state is written only when `commit`. */
+/* One step of an operator with a memory (code 9 play, 10 Bouc-Wen, 11 slew lag;
+ * tendonkit.terms._step_stateful) from its state st (NaN: not started); the new state is written
+ * only when `commit`. */
 static double memory(int code, double z, double param, double param2, double *st, int commit) {
     double a = st[0], h, d;
     if (code == 9) {
         double p = a != a ? z : pmin(pmax(a, z - param), z + param);
         if (commit) st[0] = p;
         return p;
+    }
+    if (code == 11) {
+        double r = a != a ? z : a + pmin(pmax(param * (z - a), -param2), param2);
+        if (commit) st[0] = r;
+        return r;
     }
     if (a != a) {
         if (commit) { st[0] = z; st[1] = 0.0; }
@@ -551,7 +559,7 @@ static void terms(tk_model *m, const double *ub, int commit) {
         for (f = m->ptr[t]; f < m->ptr[t + 1]; f++) {
             double z = reading(m, m->src[f], m->col[f], f, ub);
             if (m->src2[f] >= 0) /* relative to a second signal (tendonkit.terms.Factor.minus) */
-                z = z - reading(m, m->src2[f], m->col2[f], f, ub);
+                z = z - m->weight[f] * reading(m, m->src2[f], m->col2[f], f, ub);
             z = (z - m->offset[f]) * m->scale[f];
             if (m->code[f] >= 9)
                 prod *= memory(m->code[f], z, m->param[f], m->param2[f], m->S + m->s_fs + 2 * f,

@@ -26,7 +26,7 @@
 #endif
 #define TK_FINITE(x) ((x) - (x) == 0.0)
 
-#define TK_FORMAT 4.0
+#define TK_FORMAT 5.0
 #define TK_MAGIC 7318.2026 /* first number of every model.tkm */
 
 typedef struct {
@@ -53,7 +53,7 @@ typedef struct {
     double *coef;            /* sparse map: (nt, nx) */
     int *outst;              /* sparse map: output states */
     int *ptr, *src, *col, *flag, *fdiff, *src2, *col2, *code; /* src2 -1: no minus */
-    double *power, *scale, *offset, *param, *param2;
+    double *power, *scale, *offset, *param, *param2, *weight;
     int kin, iq1, iq2;
     double ratio0[4], R[6], pitch, tool;
     double *u0;              /* input start values (the operating point) */

@@ -194,3 +194,36 @@ def test_a_wiener_model_is_refined_whole_with_the_exact_jacobian() -> None:
     refined = refine(start, data)
     assert _fit(start, fresh) < 80.0
     assert _fit(refined, fresh) > 99.0
+
+
+def _loop_model(alpha: float, rate: float, weight: float) -> Model:
+    """An ARX whose actuator state ``R`` follows ``u - weight·y`` with a lag and a rate limit,
+    read at two lags (one operator: its shapes are shared)."""
+    from tendonkit.schema import ARX
+
+    def lag(k: int) -> Term:
+        f = Factor("u", fn="slew_lag", lag=k, param=alpha, param2=rate, minus="y", weight=weight)
+        return Term((f,))
+
+    rep = ARX(
+        A=(np.array([[-0.8]]),), B=(np.zeros((1, 1)),), nk=(1,),
+        terms=(lag(1), lag(2)), term_coefficients=np.array([[0.3], [0.2]]),
+    )  # fmt: skip
+    return Model("m", 0.01, (Signal("u"),), (Signal("y"),), rep)
+
+
+def test_a_slew_lags_shapes_are_refined_once_for_all_its_lags() -> None:
+    """The gain, the largest step and the loop's weight of a ``slew_lag`` read at two lags
+    come back to the truth from a wrong start, and stay one operator (equal at both lags).
+    The record starts at rest: the operator starts at its signal (its state is not estimated;
+    from a moving start the rate-limited state takes a few steps to catch up)."""
+    truth = _loop_model(0.2, 0.05, 0.2)
+    steps = np.repeat(np.random.default_rng(3).normal(size=(60, 1)), 40, axis=0)
+    u = np.r_[np.zeros((100, 1)), steps]
+    data = tk.Dataset.from_arrays(u, tk.simulate(truth, u, initial="zero"), 0.01, ["u"], ["y"])
+    start = _loop_model(0.35, 0.08, 0.1)
+    refined = refine(start, data)
+    f1, f2 = (t.factors[0] for t in refined.representation.terms)
+    assert (f1.param, f1.param2, f1.weight) == (f2.param, f2.param2, f2.weight)
+    np.testing.assert_allclose([f1.param, f1.param2, f1.weight], [0.2, 0.05, 0.2], rtol=1e-6)
+    assert _fit(start, data) < 70.0 and _fit(refined, data) > 99.99

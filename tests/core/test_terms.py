@@ -124,10 +124,11 @@ def test_stateful_terms_step_as_they_run_along_a_record_and_peeking_does_not_adv
     terms = [
         Term((Factor("x", fn="bouc_wen", lag=1, param=0.8, param2=-0.5, scale=2.0),)),
         Term((Factor("x", fn="play", param=0.2, diff=0), Factor("u"))),
+        Term((Factor("u", fn="slew_lag", lag=1, param=0.3, param2=0.1, minus="x", weight=-2.0),)),
         Term((Factor("x", power=2),)),
     ]
     ct = CompiledTerms(terms)
-    assert ct.stateful and not CompiledTerms(terms[2:]).stateful
+    assert ct.stateful and not CompiledTerms(terms[3:]).stateful
     vals = np.array([get(name, lag) for name, lag in ct.keys])
     record = ct.evaluate(vals)
     np.testing.assert_allclose(record, np.array([t.evaluate(get, (300,)) for t in terms]))
@@ -160,11 +161,56 @@ def test_hysteresis_factors_read_from_a_file_keep_their_shapes_and_are_checked()
     assert problems == ["g.param: a play's half-width must be >= 0, found -1.0."]
 
 
+def test_a_slew_lag_follows_a_step_at_its_largest_step_then_as_a_lag():
+    """``r += clip(param·(z - r), ±param2)``: an actuator that follows its command with a
+    first-order lag and a rate limit; in a loop, ``z = u - weight·y``."""
+    z = np.r_[0.0, np.full(60, 1.0)]
+    r = Factor("u", fn="slew_lag", param=0.2, param2=0.05).value(z)
+    assert r[0] == 0.0  # starts at the signal
+    np.testing.assert_allclose(np.diff(r[:8]), [0.05] * 7)  # rate-limited: 0.2·(1 - r) > 0.05
+    # once 0.2·(1 - r) < 0.05 it is a lag of pole 0.8
+    k = int(np.argmax(0.2 * (1 - r) < 0.05)) + 1
+    np.testing.assert_allclose((1 - r[k + 1 :]) / (1 - r[k:-1]), 0.8)
+    # in a loop with the load: the second signal enters with its weight (a stiffness)
+    rng = np.random.default_rng(7)
+    sig = {"u": rng.normal(size=40), "y": rng.normal(size=40)}
+    get = series_getter(sig)
+    f = Factor("u", fn="slew_lag", lag=1, param=0.5, param2=0.3, minus="y", weight=-2.5)
+    ref = Factor("u", fn="slew_lag", lag=1, param=0.5, param2=0.3).value(
+        get("u", 1) + 2.5 * get("y", 1)
+    )
+    np.testing.assert_array_equal(f.evaluate(get), ref)
+    assert f.label == "slew_lag((u[k-1]--2.5*y[k-1]);0.5,0.3)"
+    g = Term((Factor("u", power=3, minus="y", weight=2.0),)).gradient(get)
+    np.testing.assert_allclose(g["y"], -2.0 * g["u"])
+
+
+def test_a_slew_lag_read_from_a_file_keeps_its_weight_and_its_shapes_are_checked():
+    from tendonkit.terms import factor_from_dict
+
+    f = Factor("u", fn="slew_lag", lag=2, param=0.1, param2=0.5, minus="y", weight=-3.0)
+    problems: list[str] = []
+    assert factor_from_dict(f.to_dict(), "f", problems) == f and not problems
+    assert f.to_dict()["weight"] == -3.0 and "weight" not in Factor("u").to_dict()
+    for bad in ({"param": 0.0, "param2": 0.5}, {"param": 1.5, "param2": 0.5}, {"param": 0.5}):
+        problems = []
+        assert factor_from_dict({"signal": "u", "fn": "slew_lag", **bad}, "g", problems) is None
+        assert problems and "slew lag" in problems[0]
+    problems = []
+    assert factor_from_dict({"signal": "u", "minus": "y", "weight": "2"}, "h", problems) is None
+    assert problems == ["h.weight: expected a finite number, found '2'."]
+
+
 def test_the_compiled_record_loops_equal_the_step_reference():
     from tendonkit.terms import _run_stateful, _step_stateful
 
     z = np.cumsum(np.random.default_rng(5).normal(size=500)) * 0.2
-    for fn, p, p2 in (("play", 0.3, 0.0), ("bouc_wen", 0.7, -0.4), ("bouc_wen", 0.2, 0.5)):
+    for fn, p, p2 in (
+        ("play", 0.3, 0.0),
+        ("bouc_wen", 0.7, -0.4),
+        ("bouc_wen", 0.2, 0.5),
+        ("slew_lag", 0.3, 0.1),
+    ):
         state, ref = (np.nan, np.nan), []
         for zk in z:
             v, d, state = _step_stateful(fn, zk, state, p, p2)

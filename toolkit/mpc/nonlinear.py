@@ -99,7 +99,7 @@ class SparseMapDynamics:
         self.terms = CompiledTerms(rep.terms)
         if self.terms.stateful:
             raise OptionError(
-                f"{model.name!r} has hysteresis terms (play, bouc_wen); the nonlinear MPC "
+                f"{model.name!r} has terms with a memory (play, bouc_wen, slew_lag); the nonlinear MPC "
                 "linearises memoryless terms only."
             )
         uneven = _uneven_differences(rep.terms, delay)

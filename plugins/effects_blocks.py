@@ -480,6 +480,7 @@ def _static_gains(model: Model, data: Dataset) -> np.ndarray | None:
     """``K[j, m]``: how far output ``j`` of ``model`` settles per unit of input ``m``, from a
     step of half the input's spread at the data's mean input (simulated: any representation,
     terms included); None where an output does not settle or the simulation diverges."""
+    data = aligned(model, data)
     u, spread = data.u.mean(axis=0), data.u.std(axis=0)
     n = min(max(len(data.u), 200), 4000)
     base = simulate(model, np.tile(u, (n, 1)))
@@ -493,10 +494,26 @@ def _static_gains(model: Model, data: Dataset) -> np.ndarray | None:
         step[:, m] += 0.5 * spread[m]
         y = simulate(model, step) - base
         tail = y[-n // 10 :]
-        if not np.all(np.isfinite(y)) or np.any(np.ptp(tail, axis=0) > 0.01 * np.abs(tail).max()):
+        # every output settled: its last tenth moves by less than 1 % of where it is
+        if not np.all(np.isfinite(y)) or np.any(
+            np.ptp(tail, axis=0) > 0.01 * np.abs(tail).max(axis=0)
+        ):
             return None
         K[:, m] = y[-1] / (0.5 * spread[m])
     return K
+
+
+def _step_sizes(data: Dataset, q: float) -> np.ndarray:
+    """The ``q`` quantile of each input's nonzero ``|change per sample|`` within experiments
+    (a command held in steps changes on few samples: a rate at its zero quantile would hold
+    the actuator still); 0 for an input that never changes."""
+    du = np.vstack([np.abs(np.diff(e.u, axis=0)) for e in data.experiments if e.n_samples > 1])
+    out = np.zeros(du.shape[1])
+    for m in range(du.shape[1]):
+        moves = du[du[:, m] > 0, m]
+        if moves.size:
+            out[m] = float(np.quantile(moves, q))
+    return out
 
 
 class ActuatorLag:
@@ -610,34 +627,41 @@ class ActuatorLag:
         load's reaction ``g·y``, and the controller moves ``R`` toward ``u - g·y`` at a limited
         rate.  No block on the input alone follows that (it needs the output), and without the
         rate limit it is linear (the baseline absorbs it); with it, ``R`` is a ``slew_lag``
-        factor of ``u - g·y`` entering at each of the baseline's input lags.  ``g`` is scaled
-        by the baseline's static gain ``K`` of the input on the output it moves most (relative
-        to that output's spread): ``g = -c / K``, ``c`` the share of the input's effect that
-        comes back through the load.  A coarse grid of ``c``, the time constant and the step
-        limit, then a pattern search (``c`` of every input together and of each on its own).
-        ARX baselines whose outputs settle (a static gain exists).
+        factor of ``u - g·y`` in place of the force at each of the baseline's input lags:
+        the force of sample ``k - nk - i`` is the state after the command of the sample
+        before, the factor's value at lag ``nk + i + 1``.  ``g`` is scaled by the baseline's
+        static gain ``K`` of the input on the output it moves most (relative to that output's
+        spread): ``g = -c / K`` with ``c > 0``, the share of the input's effect that comes
+        back through the load — a load that pushes back (a spring), never one that pulls the
+        actuator on.  A coarse grid of ``c``, the time constant and the step limit (a quantile
+        of the command's nonzero steps), then a pattern search (``c`` of every input together
+        and of each on its own).  ARX baselines whose outputs settle (a static gain exists).
         """
         rep = ctx.baseline.representation
         none: tuple[dict[str, Any], Model | None, float, list[Any]] = ({}, None, -np.inf, [])
-        if not isinstance(rep, ARX) or not ctx.train.inputs or not ctx.train.outputs:
+        if not isinstance(rep, ARX) or rep.nb == 0 or not ctx.train.outputs:
             return none
-        K = _static_gains(ctx.baseline, ctx.train)
+        train = aligned(ctx.baseline, ctx.train)
+        K = _static_gains(ctx.baseline, train)
         if K is None:
             return none  # it drifts (an integrating plant): no static gain to scale the loop by
-        ystd = np.maximum(ctx.train.y.std(axis=0), 1e-12)
-        du = np.abs(np.diff(ctx.train.u, axis=0))
-        ins, outs = list(ctx.train.inputs), list(ctx.train.outputs)
+        ystd = np.maximum(train.y.std(axis=0), 1e-300)
+        ustd = train.u.std(axis=0)
+        ins, outs = list(train.inputs), list(train.outputs)
+        steps = _step_sizes(train, 0.5)
         links = []
         for m in range(len(ins)):
-            j = int(np.argmax(np.abs(K[:, m]) / ystd))
-            if K[j, m] != 0:
+            moved = np.abs(K[:, m]) * ustd[m] / ystd  # each output's move per input spread
+            j = int(np.argmax(moved))
+            # an input that moves no output (beyond round-off) has no load to feel
+            if moved[j] > 1e-6 and steps[m] > 0:
                 links.append((m, j, float(K[j, m])))
         if not links:
             return none
 
         def candidate(c: tuple[float, ...], tau: float, q: float) -> tuple[dict[str, Any], Any]:
             alpha = float(1.0 - np.exp(-1.0 / tau))
-            rate = np.quantile(du, q, axis=0)
+            rate = _step_sizes(train, q)
             weights = [-ci / k for ci, (_, _, k) in zip(c, links, strict=True)]
             terms = [
                 Term(
@@ -647,7 +671,7 @@ class ActuatorLag:
                             fn="slew_lag",
                             lag=rep.nk[m] + i + 1,
                             param=alpha,
-                            param2=float(max(rate[m], 1e-12)),
+                            param2=float(rate[m]),
                             minus=outs[j],
                             weight=w,
                         ),

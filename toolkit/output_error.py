@@ -100,9 +100,10 @@ def _shapes(terms: Sequence[Term]) -> list[tuple[list[tuple[int, int]], str]]:
 
     A play's half-width, a Bouc-Wen operator's two shapes, a slew lag's gain, largest step and
     (in a loop) the weight of its second signal.  The slew lags of one signal with equal
-    shapes are one operator read at several lags (``R[k-1]``, ``R[k-2]``, …: an actuator's
-    state entering the dynamics through each input lag), so they share their parameters: a
-    key's ``places`` are every ``(term, factor)`` it sets.
+    shapes are one actuator read at several lags (``R[k-1]``, ``R[k-2]``, …: its state
+    entering the dynamics through each input lag), so they share their parameters (each
+    factor still runs its own copy of the state, from its own first sample): a key's
+    ``places`` are every ``(term, factor)`` it sets.
     """
     out: list[tuple[list[tuple[int, int]], str]] = []
     lags: dict[tuple[Any, ...], list[tuple[int, int]]] = {}
@@ -115,7 +116,7 @@ def _shapes(terms: Sequence[Term]) -> list[tuple[list[tuple[int, int]], str]]:
                 keys = ("param",) if f.fn == "play" else ("param", "param2")
                 out += [([(t, j)], key) for key in keys]
                 continue
-            group = (f.signal, f.minus, f.scale, f.offset, f.param, f.param2, f.weight)
+            group = (f.signal, f.minus, f.diff, f.scale, f.offset, f.param, f.param2, f.weight)
             if group in lags:
                 lags[group].append((t, j))
                 continue
@@ -197,10 +198,14 @@ def _codec(model: Model, blocks: bool = True) -> tuple[FloatArray, Callable[[Flo
             for k, (at, key) in enumerate(shapes):
                 value = float(theta[len(theta) - len(shapes) + k])
                 fn = terms[at[0][0]][at[0][1]].fn
-                if fn == "play" or (fn == "slew_lag" and key == "param2"):
-                    value = abs(value)  # a half-width, a largest step
+                if not np.isfinite(value):  # a step the solver cannot take: the start's value
+                    value = float(theta0[len(theta0) - len(shapes) + k])
+                if fn == "play":
+                    value = abs(value)  # a half-width
+                elif fn == "slew_lag" and key == "param2":
+                    value = max(abs(value), 1e-12)  # a largest step: > 0, as the schema asks
                 elif fn == "slew_lag" and key == "param":
-                    value = min(max(value, 1e-6), 1.0)  # a gain per sample
+                    value = min(max(value, 1e-6), 1.0)  # a gain per sample, in (0, 1]
                 for t, j in at:
                     f = terms[t][j]
                     if key == "param":

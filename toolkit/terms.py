@@ -128,9 +128,10 @@ class Factor:
         name = self.signal if self.lag == 0 else f"{self.signal}[k-{self.lag}]"
         if self.minus:
             other = self.minus if self.lag == 0 else f"{self.minus}[k-{self.lag}]"
-            if self.weight != 1.0:
-                other = f"{self.weight:g}*{other}"
-            name = f"({name}-{other})"
+            sign = "+" if self.weight < 0 else "-"
+            if abs(self.weight) != 1.0:
+                other = f"{abs(self.weight):g}*{other}"
+            name = f"({name}{sign}{other})"
         if self.diff:
             name = f"Δ{name}" if self.diff == 1 else f"Δ{self.diff}{name}"
         if self.scale != 1.0 or self.offset != 0.0:
@@ -379,6 +380,12 @@ def factor_from_dict(data: Any, where: str, problems: list[str]) -> Factor | Non
     if ok and fn == "play" and floats["param"] < 0:
         problems.append(
             f"{where}.param: a play's half-width must be >= 0, found {floats['param']!r}."
+        )
+        ok = False
+    if ok and not minus and floats["weight"] != 1.0:
+        problems.append(
+            f"{where}.weight: weighs the second signal (minus), and this factor has none; "
+            f"found {floats['weight']!r}."
         )
         ok = False
     if ok and fn == "slew_lag" and not (0.0 < floats["param"] <= 1.0 and floats["param2"] > 0):

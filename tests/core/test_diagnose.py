@@ -599,6 +599,56 @@ def test_a_direct_test_without_a_p_value_is_a_plugin_error():
         unregister(name)
 
 
+class _Unrefittable:
+    """The built-in stiffness effect, whose named structure cannot be refitted later (as a
+    Wiener curve whose inner model diverges on the whole record)."""
+
+    name = "unrefittable"
+    cause = "nonlinear_stiffness"
+    description = "A cubic stiffness that cannot be refitted."
+
+    def __init__(self) -> None:
+        from tendonkit.plugins.effects_terms import NonlinearStiffness
+
+        self._inner = NonlinearStiffness()
+
+    def extend(self, ctx):
+        ext = self._inner.extend(ctx)
+
+        def build(data):
+            raise ValueError("the inner model diverges on the data")
+
+        return None if ext is None else dataclasses.replace(ext, build=build)
+
+    def signature(self, ctx, baseline, valid, residuals):
+        return self._inner.signature(ctx, baseline, valid, residuals)
+
+
+def test_a_named_structure_that_cannot_be_refitted_ends_the_sequence_and_says_why():
+    import types
+
+    from tendonkit import hookimpl
+    from tendonkit.manager import register, unregister
+
+    plugin = types.SimpleNamespace(
+        tendonkit_register_effects=hookimpl(lambda registry: registry.add(_Unrefittable()))
+    )
+    name = register(plugin, name="unrefittable-test")
+    try:
+        d = diagnose(
+            _arx_data(32, 3000, cubic=0.3),
+            _arx_data(62, 2000, cubic=0.3),
+            method="arx",
+            options={"na": 2, "nb": 1},
+            effects=["unrefittable", "input_delay"],
+            refine=False,
+        )
+    finally:
+        unregister(name)
+    assert d.causes == ("nonlinear_stiffness",)
+    assert "could not be refitted" in d.steps[-1].stop and "diverges" in d.steps[-1].stop
+
+
 def test_effects_tried_on_workers_give_the_same_diagnosis():
     """jobs=2 (the task engine) names the same causes with the same numbers as jobs=1."""
     train = _arx_data(32, 3000, cubic=0.3, delay=3)
@@ -1232,3 +1282,29 @@ def test_a_state_space_extension_identified_around_an_operating_point_keeps_its_
         e = data.experiments[0]
         fits[shift] = float(fit(e.y, simulate(ext, e.u, y=e.y, initial="estimate"))[0])
     assert fits[0.0] > 95.0 and abs(fits[3.0] - fits[0.0]) < 1.0, fits
+
+
+def test_the_loop_of_an_actuator_is_scaled_by_static_gains_and_steps_that_move():
+    """``actuator_lag``'s loop with the load: the baseline's static gain per input (None for an
+    integrating plant, which has none) and the step limits from the steps that move (a
+    command held in steps changes on few samples)."""
+    import tendonkit as tk
+    from tendonkit.plugins.effects_blocks import _static_gains, _step_sizes
+    from tendonkit.schema import ARX, Model, Signal
+
+    data = _arx_data(21, 2000, noise=0.0)
+    model = tk.identify(data, "arx", na=2, nb=1)
+    # y = (0.10 u1 - 0.05 u2) / (1 - 1.5 + 0.7) at rest
+    np.testing.assert_allclose(_static_gains(model, data)[0], [0.5, -0.25], rtol=1e-6)
+    integrator = Model(
+        "i", 0.01, (Signal("f1"), Signal("f2")), (Signal("pos"),),
+        ARX((np.array([[-1.0]]),), (np.array([[0.1, 0.0]]),), (1, 1)),
+    )  # fmt: skip
+    assert _static_gains(integrator, data) is None
+    held = np.c_[np.repeat(np.arange(10.0), 50), np.arange(500.0) % 3]
+    y = np.random.default_rng(0).normal(size=(500, 1))
+    steps = Dataset.from_arrays(held, y, 0.01, ["f1", "f2"], ["pos"])
+    assert float(np.quantile(np.abs(np.diff(held[:, 0])), 0.5)) == 0.0
+    # f2 steps by 1, 1 and 2 in turn: its median nonzero step is 1
+    np.testing.assert_array_equal(_step_sizes(steps, 0.5), [1.0, 1.0])
+    np.testing.assert_array_equal(_step_sizes(steps, 0.9), [1.0, 2.0])

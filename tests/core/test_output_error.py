@@ -227,3 +227,8 @@ def test_a_slew_lags_shapes_are_refined_once_for_all_its_lags() -> None:
     assert (f1.param, f1.param2, f1.weight) == (f2.param, f2.param2, f2.weight)
     np.testing.assert_allclose([f1.param, f1.param2, f1.weight], [0.2, 0.05, 0.2], rtol=1e-6)
     assert _fit(start, data) < 70.0 and _fit(refined, data) > 99.99
+    # the refined model is a valid model file: written and read back, it simulates the same
+    import json
+
+    back = Model.from_dict(json.loads(json.dumps(refined.to_dict())))
+    np.testing.assert_array_equal(tk.simulate(back, u), tk.simulate(refined, u))

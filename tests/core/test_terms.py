@@ -180,7 +180,8 @@ def test_a_slew_lag_follows_a_step_at_its_largest_step_then_as_a_lag():
         get("u", 1) + 2.5 * get("y", 1)
     )
     np.testing.assert_array_equal(f.evaluate(get), ref)
-    assert f.label == "slew_lag((u[k-1]--2.5*y[k-1]);0.5,0.3)"
+    assert f.label == "slew_lag((u[k-1]+2.5*y[k-1]);0.5,0.3)"
+    assert Factor("u", minus="y", weight=-1.0).label == "(u+y)"
     g = Term((Factor("u", power=3, minus="y", weight=2.0),)).gradient(get)
     np.testing.assert_allclose(g["y"], -2.0 * g["u"])
 
@@ -199,6 +200,9 @@ def test_a_slew_lag_read_from_a_file_keeps_its_weight_and_its_shapes_are_checked
     problems = []
     assert factor_from_dict({"signal": "u", "minus": "y", "weight": "2"}, "h", problems) is None
     assert problems == ["h.weight: expected a finite number, found '2'."]
+    problems = []
+    assert factor_from_dict({"signal": "u", "weight": 2.0}, "w", problems) is None
+    assert problems and "has none" in problems[0]
 
 
 def test_the_compiled_record_loops_equal_the_step_reference():

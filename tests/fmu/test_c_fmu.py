@@ -429,8 +429,13 @@ def test_an_fmu_that_logs_after_a_closed_plant_session_does_not_crash(tmp_path):
 
 def _edge_models() -> dict[str, Model]:
     from tendonkit.schema import ARX, Block, Signal, StateSpace
+    from tendonkit.terms import Factor, Term
 
     one = np.array([[1.0]])
+
+    def loop(k: int) -> Factor:
+        return Factor("u", "slew_lag", lag=k, param=0.3, param2=0.05, minus="y", weight=0.4)
+
     return {
         # no state at all: a static gain
         "static": Model(
@@ -474,11 +479,25 @@ def _edge_models() -> dict[str, Model]:
                 y0=np.array([0.0, 4.0]),
             ),
         ),
+        # an actuator in a loop with its load: a rate-limited lag of u - 0.4·y at two lags
+        "loop": Model(
+            "loop",
+            0.1,
+            (Signal("u"),),
+            (Signal("y"),),
+            ARX(
+                (np.array([[-0.8]]),),
+                (np.zeros((1, 1)),),
+                (1,),
+                terms=tuple(Term((loop(k),)) for k in (1, 2)),
+                term_coefficients=np.array([[0.3], [0.2]]),
+            ),
+        ),
     }
 
 
 @pytest.mark.parametrize("fmi", [2, 3])
-@pytest.mark.parametrize("case", ["static", "time", "fir", "offsets"])
+@pytest.mark.parametrize("case", ["static", "time", "fir", "offsets", "loop"])
 def test_edge_models_export_validate_and_equal_simulate(tmp_path, case, fmi):
     model = _edge_models()[case]
     path = export(model, tmp_path, fmi, platforms=HOST)

@@ -1145,7 +1145,18 @@ def continue_sequence(
         bar.total = (bar.total or 0) + len(names) + 1
         bar.set_description(f"diagnose: step {len(steps) + 1}")
         before = tuple((s.cause, s.params, s.index) for s in steps if s.cause != "none")
-        start, ref, ctx = _start_from(build, train, valid, settings, refined, before)
+        try:
+            start, ref, ctx = _start_from(build, train, valid, settings, refined, before)
+        except _FIT_ERRORS as exc:
+            # the named structure refitted as the next step's baseline can fail where the
+            # named model did not (a Wiener curve whose inner model now diverges): the causes
+            # named so far stand, and the sequence ends there, saying why
+            steps[-1] = dataclasses.replace(
+                steps[-1],
+                stop=f"the named extension could not be refitted on the training data as the "
+                f"next step's baseline ({exc}), so no further cause is tried",
+            )
+            break
         bar.update()
         step_trials, step_skipped = run_effects(registry, names, ctx, ref, valid, settings, bar)
         step_trials = complete_held_out(step_trials, registry, ctx, settings)

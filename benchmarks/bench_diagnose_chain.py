@@ -31,6 +31,17 @@ constants of 20 and 30 s).  Its effects: a dead time of 15–40 s, a pump that s
 4–4.6 V (``dead_zone``), a pump limited at 5.6–6.2 V (``saturation``), a slew limit of
 0.02–0.05 V/s (``actuator_lag``) and a pump curve ``u + c (u - 5)²`` (``static_nonlinearity``).
 The square root of the outflows is a static nonlinearity of the plant itself.
+
+``--plant sea`` runs a third: a series-elastic actuator at 5 ms (written on 2026-11-27, after
+the loop of ``actuator_lag`` was built on the robot, and tuned on nothing).  A proportional
+force loop drives a motor, ``dθ/dt = kp (u - F)``, whose spring pushes a load,
+``F = k (θ - x)``, ``m ẍ = F - c ẋ - k_l x``; the force command ``u`` (random steps held
+50 ms, rms 20 N) is the input, the load position ``x`` (1 % noise) the output.  The plant's
+own parameters are drawn from the seed too (``k`` 2,000–5,000 N/m, ``m`` 0.5–2 kg, ``c``
+2–8 N·s/m, ``k_l`` 200–800 N/m, ``kp`` 0.01–0.03 m/s per N).  Its effects: the motor's speed
+limited at 30–60 % of the 95 % quantile of the speed the free loop asks for
+(``actuator_lag``: a rate limit *inside* the force loop), a dry friction of 1–3 N on the
+load (``coulomb_friction``), the command clipped at 15–25 N (``saturation``).
 """
 
 from __future__ import annotations
@@ -167,6 +178,53 @@ def tanks(
     return Dataset(inputs=("pump",), outputs=("level",), experiments=(e,), dt=1.0)
 
 
+SEA_EFFECTS = ("none", "actuator_lag", "coulomb_friction", "saturation")
+SEA_RANGES = {
+    "actuator_lag": ("speed_share", 0.3, 0.6),
+    "coulomb_friction": ("fc", 1.0, 3.0),
+    "saturation": ("limit", 15.0, 25.0),
+}
+
+
+def sea_plant(seed: int) -> dict[str, float]:
+    """The series-elastic actuator's own parameters, drawn from the case's seed."""
+    g = np.random.default_rng(seed + 7000)
+    return {
+        "k": g.uniform(2000.0, 5000.0),
+        "m": g.uniform(0.5, 2.0),
+        "c": g.uniform(2.0, 8.0),
+        "kl": g.uniform(200.0, 800.0),
+        "kp": g.uniform(0.01, 0.03),
+    }
+
+
+def sea(
+    effect: str, p: dict[str, float], seed: int, plant: dict[str, float], n: int = 6000
+) -> tuple[Dataset, np.ndarray]:
+    """One record of the series-elastic actuator with ``effect`` hidden, and the motor speed
+    its force loop asked for (``p["vmax"]``: the motor's speed limit, for ``actuator_lag``)."""
+    u = np.repeat(np.random.default_rng(seed).normal(0.0, 20.0, n // 10 + 1), 10)[:n]
+    if effect == "saturation":
+        u_in = np.clip(u, -p["limit"], p["limit"])
+    else:
+        u_in = u
+    vmax = p["vmax"] if effect == "actuator_lag" else np.inf
+    k, m, c, kl, kp = (plant[key] for key in ("k", "m", "c", "kl", "kp"))
+    th = x = w = 0.0
+    y, speed = np.empty(n), np.empty(n)
+    for i in range(n):
+        f = k * (th - x)
+        y[i] = x
+        speed[i] = kp * (u_in[i] - f)
+        th += DT * min(max(speed[i], -vmax), vmax)
+        fr = p["fc"] * np.tanh(w / 1e-3) if effect == "coulomb_friction" else 0.0
+        w += DT * (f - c * w - kl * x - fr) / m
+        x += DT * w
+    y = y + 0.01 * y.std() * np.random.default_rng(seed + 1).standard_normal(n)
+    e = Experiment(t=DT * np.arange(n), u=u[:, None], y=y[:, None], name=f"sea{seed}")
+    return Dataset(inputs=("F_cmd",), outputs=("x",), experiments=(e,), dt=DT), speed
+
+
 def case(shared: Any, job: tuple[str, int]) -> dict[str, Any]:
     """One diagnosis at default options."""
     from tendonkit.diagnose import diagnose
@@ -176,6 +234,12 @@ def case(shared: Any, job: tuple[str, int]) -> dict[str, Any]:
     if plant == "tanks":
         p = draw(effect, seed, TANK_RANGES)
         train, valid = tanks(effect, p, seed, areas), tanks(effect, p, seed + 500, areas)
+    elif plant == "sea":
+        p, sp = draw(effect, seed, SEA_RANGES), sea_plant(seed)
+        if effect == "actuator_lag":  # a share of the speed the free loop asks for
+            asked = np.abs(sea("none", {}, seed, sp)[1])
+            p["vmax"] = p["speed_share"] * float(np.quantile(asked, 0.95))
+        train, valid = sea(effect, p, seed, sp)[0], sea(effect, p, seed + 500, sp)[0]
     else:
         p = draw(effect, seed)
         train, valid = chain(effect, p, seed), chain(effect, p, seed + 500)
@@ -202,10 +266,10 @@ def main() -> None:
     parser.add_argument("--seeds", default="801,802", help="comma-separated seeds")
     parser.add_argument("--jobs", type=int, default=1, help="worker processes")
     parser.add_argument("--out", default=None, help="JSON file for the results")
-    parser.add_argument("--plant", choices=("chain", "tanks"), default="chain")
+    parser.add_argument("--plant", choices=("chain", "tanks", "sea"), default="chain")
     parser.add_argument("--areas", default="2,3", help="the tanks' areas (time constants /10)")
     args = parser.parse_args()
-    effects = TANK_EFFECTS if args.plant == "tanks" else EFFECTS
+    effects = {"tanks": TANK_EFFECTS, "sea": SEA_EFFECTS}.get(args.plant, EFFECTS)
     jobs = [(e, int(s)) for e in effects for s in args.seeds.split(",")]
     areas = tuple(float(a) for a in args.areas.split(","))
     load = os.getloadavg()[0]

@@ -212,14 +212,17 @@ def sea(
     k, m, c, kl, kp = (plant[key] for key in ("k", "m", "c", "kl", "kp"))
     th = x = w = 0.0
     y, speed = np.empty(n), np.empty(n)
+    sub = 20  # substeps: the friction's tanh(w/1e-3) is stiff (explicit Euler, as the chain)
+    h = DT / sub
     for i in range(n):
-        f = k * (th - x)
         y[i] = x
-        speed[i] = kp * (u_in[i] - f)
-        th += DT * min(max(speed[i], -vmax), vmax)
-        fr = p["fc"] * np.tanh(w / 1e-3) if effect == "coulomb_friction" else 0.0
-        w += DT * (f - c * w - kl * x - fr) / m
-        x += DT * w
+        speed[i] = kp * (u_in[i] - k * (th - x))
+        for _ in range(sub):
+            f = k * (th - x)
+            th += h * min(max(kp * (u_in[i] - f), -vmax), vmax)
+            fr = p["fc"] * np.tanh(w / 1e-3) if effect == "coulomb_friction" else 0.0
+            w += h * (f - c * w - kl * x - fr) / m
+            x += h * w
     y = y + 0.01 * y.std() * np.random.default_rng(seed + 1).standard_normal(n)
     e = Experiment(t=DT * np.arange(n), u=u[:, None], y=y[:, None], name=f"sea{seed}")
     return Dataset(inputs=("F_cmd",), outputs=("x",), experiments=(e,), dt=DT), speed

@@ -538,8 +538,12 @@ class ActuatorLag:
 
     #: In a loop with the load: the share ``c`` of each input's static gain to its output that
     #: flows back into the actuator (``g = -c / K``), the lag's time constant (samples) and
-    #: the step limit (a quantile of the command's |change per sample|) — tried on a coarse
-    #: grid, then one coordinate at a time around the best.
+    #: the step limit (a quantile of the command's nonzero steps: :func:`_step_sizes`) — tried
+    #: on a coarse grid, then one coordinate at a time around the best.  ``c`` can exceed 1
+    #: (a stiff spring on a soft load feeds back more than the input's static effect; a
+    #: series-elastic actuator's is its spring over the load's stiffness, 2.5 to 25 on
+    #: ``bench_diagnose_chain.py --plant sea``), which this grid and four rounds of ×√2 do
+    #: not reach beyond 4.
     loop_shares = (0.25, 0.5, 1.0)
     loop_taus = (4.0, 16.0)
     loop_quantiles = (0.2, 0.5)
@@ -659,9 +663,11 @@ class ActuatorLag:
         if not links:
             return none
 
+        sizes: dict[float, np.ndarray] = {}
+
         def candidate(c: tuple[float, ...], tau: float, q: float) -> tuple[dict[str, Any], Any]:
             alpha = float(1.0 - np.exp(-1.0 / tau))
-            rate = _step_sizes(train, q)
+            rate = sizes[q] if q in sizes else sizes.setdefault(q, _step_sizes(train, q))
             weights = [-ci / k for ci, (_, _, k) in zip(c, links, strict=True)]
             terms = [
                 Term(

@@ -624,7 +624,7 @@ class _Unrefittable:
         return self._inner.signature(ctx, baseline, valid, residuals)
 
 
-def test_a_named_structure_that_cannot_be_refitted_ends_the_sequence_and_says_why():
+def test_a_named_structure_that_cannot_be_refitted_ends_the_sequence_and_says_why(tmp_path):
     import types
 
     from tendonkit import hookimpl
@@ -647,6 +647,10 @@ def test_a_named_structure_that_cannot_be_refitted_ends_the_sequence_and_says_wh
         unregister(name)
     assert d.causes == ("nonlinear_stiffness",)
     assert "could not be refitted" in d.steps[-1].stop and "diverges" in d.steps[-1].stop
+    # and the CLI and the HTML report say so
+    assert "could not be refitted" in render_diagnosis(d.to_dict())
+    html = write_report(d, _arx_data(62, 2000, cubic=0.3), tmp_path / "r").read_text()
+    assert "could not be refitted" in html
 
 
 def test_effects_tried_on_workers_give_the_same_diagnosis():

@@ -1142,8 +1142,6 @@ def continue_sequence(
         names = [n for n in settings.effects if registry.get(n).cause not in done]
         if not names:
             break
-        bar.total = (bar.total or 0) + len(names) + 1
-        bar.set_description(f"diagnose: step {len(steps) + 1}")
         before = tuple((s.cause, s.params, s.index) for s in steps if s.cause != "none")
         try:
             start, ref, ctx = _start_from(build, train, valid, settings, refined, before)
@@ -1157,6 +1155,8 @@ def continue_sequence(
                 f"next step's baseline ({exc}), so no further cause is tried",
             )
             break
+        bar.total = (bar.total or 0) + len(names) + 1
+        bar.set_description(f"diagnose: step {len(steps) + 1}")
         bar.update()
         step_trials, step_skipped = run_effects(registry, names, ctx, ref, valid, settings, bar)
         step_trials = complete_held_out(step_trials, registry, ctx, settings)

@@ -224,7 +224,8 @@ class Step:
     Step 1 starts from the baseline, step ``k`` from the model step ``k - 1`` named.  The last
     step is the one where nothing more was significant, or where the cause named was not
     confirmed by the refined models (``cause == "none"``; :attr:`stop` says why), unless the
-    sequence stopped at ``max_causes``.
+    sequence stopped at ``max_causes`` or after a named step whose structure could not be
+    carried on to the next (its :attr:`stop` says why).
     """
 
     index: int

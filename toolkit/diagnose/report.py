@@ -112,6 +112,10 @@ def write_report(
             + ", ".join(d["causes"])
             + "."
         )
+    last = d["sequence"][-1] if d["sequence"] else None
+    if last is not None and last["cause"] != "none" and last.get("stop"):
+        # the sequence ended on a named step (its structure could not be carried on)
+        rep.text(f"Step {last['step']}: {last['stop']}.", note=True)
     v = d.get("versus")
     if v and "fit" in v:
         rep.text(

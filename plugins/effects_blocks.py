@@ -531,7 +531,8 @@ class ActuatorLag:
     #: Time constants tried, in samples (from one: a shorter lag of a zero-order-held input is a
     #: detail of the sampling instant, which the baseline's numerator represents).
     taus = (1.0, 2.0, 4.0, 8.0, 16.0, 32.0)
-    #: Rate limits tried, as quantiles of each input's |change per sample|.
+    #: Rate limits tried, as quantiles of each input's nonzero |change per sample|
+    #: (:func:`_step_sizes`: a command held in steps would give limits of 0).
     rate_quantiles = (0.05, 0.2, 0.5, 0.8)
     #: Then the best rate times 2 to these powers.
     refine = (-0.5, -0.25, 0.25, 0.5)
@@ -572,7 +573,6 @@ class ActuatorLag:
         that lag.
         """
         dt = ctx.train.dt
-        du = np.abs(np.diff(ctx.train.u, axis=0))
         lags = []
         for tau in self.taus:
             pole = float(np.exp(-1.0 / tau))
@@ -584,7 +584,7 @@ class ActuatorLag:
         if best_lag:
             cands.append((p1, _with_input_blocks(ctx, best_lag)))
         for q in self.rate_quantiles:
-            rate = np.quantile(du, q, axis=0)
+            rate = _step_sizes(ctx.train, q)
             rblocks = [
                 Block("rate_limit", n, {"rate": float(rate[m])})
                 for m, n in enumerate(ctx.train.inputs)

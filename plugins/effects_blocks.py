@@ -503,17 +503,19 @@ def _static_gains(model: Model, data: Dataset) -> np.ndarray | None:
     return K
 
 
-def _step_sizes(data: Dataset, q: float) -> np.ndarray:
+def _moves(data: Dataset) -> list[np.ndarray]:
+    """Each input's nonzero ``|change per sample|`` within experiments."""
+    du = np.vstack([np.abs(np.diff(e.u, axis=0)) for e in data.experiments if e.n_samples > 1])
+    return [du[du[:, m] > 0, m] for m in range(du.shape[1])]
+
+
+def _step_sizes(data: Dataset, q: float, moves: list[np.ndarray] | None = None) -> np.ndarray:
     """The ``q`` quantile of each input's nonzero ``|change per sample|`` within experiments
     (a command held in steps changes on few samples: a rate at its zero quantile would hold
-    the actuator still); 0 for an input that never changes."""
-    du = np.vstack([np.abs(np.diff(e.u, axis=0)) for e in data.experiments if e.n_samples > 1])
-    out = np.zeros(du.shape[1])
-    for m in range(du.shape[1]):
-        moves = du[du[:, m] > 0, m]
-        if moves.size:
-            out[m] = float(np.quantile(moves, q))
-    return out
+    the actuator still); 0 for an input that never changes.  ``moves``: :func:`_moves` of
+    ``data``, computed once by a caller that asks for several quantiles."""
+    moves = _moves(data) if moves is None else moves
+    return np.array([float(np.quantile(mv, q)) if mv.size else 0.0 for mv in moves])
 
 
 class ActuatorLag:
@@ -583,8 +585,9 @@ class ActuatorLag:
         cands = []
         if best_lag:
             cands.append((p1, _with_input_blocks(ctx, best_lag)))
+        moves = _moves(ctx.train)
         for q in self.rate_quantiles:
-            rate = _step_sizes(ctx.train, q)
+            rate = _step_sizes(ctx.train, q, moves)
             rblocks = [
                 Block("rate_limit", n, {"rate": float(rate[m])})
                 for m, n in enumerate(ctx.train.inputs)
@@ -652,7 +655,9 @@ class ActuatorLag:
         ystd = np.maximum(train.y.std(axis=0), 1e-300)
         ustd = train.u.std(axis=0)
         ins, outs = list(train.inputs), list(train.outputs)
-        steps = _step_sizes(train, 0.5)
+        moves = _moves(train)
+        sizes = {0.5: _step_sizes(train, 0.5, moves)}  # step limits by quantile, each once
+        steps = sizes[0.5]
         links = []
         for m in range(len(ins)):
             moved = np.abs(K[:, m]) * ustd[m] / ystd  # each output's move per input spread
@@ -663,11 +668,11 @@ class ActuatorLag:
         if not links:
             return none
 
-        sizes: dict[float, np.ndarray] = {}
-
         def candidate(c: tuple[float, ...], tau: float, q: float) -> tuple[dict[str, Any], Any]:
             alpha = float(1.0 - np.exp(-1.0 / tau))
-            rate = sizes[q] if q in sizes else sizes.setdefault(q, _step_sizes(train, q))
+            if q not in sizes:
+                sizes[q] = _step_sizes(train, q, moves)
+            rate = sizes[q]
             weights = [-ci / k for ci, (_, _, k) in zip(c, links, strict=True)]
             terms = [
                 Term(

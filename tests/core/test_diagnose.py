@@ -624,14 +624,42 @@ class _Unrefittable:
         return self._inner.signature(ctx, baseline, valid, residuals)
 
 
-def test_a_named_structure_that_cannot_be_refitted_ends_the_sequence_and_says_why(tmp_path):
+class _Divergent(_Unrefittable):
+    """The built-in stiffness effect, whose named structure refitted on the training data
+    diverges (an unstable pole: as a start model that simulates the validation data to
+    infinity)."""
+
+    def extend(self, ctx):
+        ext = self._inner.extend(ctx)
+
+        def build(data):
+            model = ext.build(data)
+            rep = model.representation
+            unstable = (np.full((1, 1), -2.0), *(np.zeros_like(a) for a in rep.A[1:]))
+            pushes = np.abs(rep.term_coefficients)  # the cubic pushes on: no bound
+            rep = dataclasses.replace(rep, A=unstable, term_coefficients=pushes)
+            return model.replace(representation=rep)
+
+        return None if ext is None else dataclasses.replace(ext, build=build)
+
+
+@pytest.mark.parametrize(
+    ("effect", "says"),
+    [
+        (_Unrefittable, "could not be refitted"),
+        (_Divergent, "diverges on the validation data"),
+    ],
+)
+def test_a_named_structure_that_cannot_be_refitted_ends_the_sequence_and_says_why(
+    tmp_path, effect, says
+):
     import types
 
     from tendonkit import hookimpl
     from tendonkit.manager import register, unregister
 
     plugin = types.SimpleNamespace(
-        tendonkit_register_effects=hookimpl(lambda registry: registry.add(_Unrefittable()))
+        tendonkit_register_effects=hookimpl(lambda registry: registry.add(effect()))
     )
     name = register(plugin, name="unrefittable-test")
     try:
@@ -646,11 +674,11 @@ def test_a_named_structure_that_cannot_be_refitted_ends_the_sequence_and_says_wh
     finally:
         unregister(name)
     assert d.causes == ("nonlinear_stiffness",)
-    assert "could not be refitted" in d.steps[-1].stop and "diverges" in d.steps[-1].stop
+    assert says in d.steps[-1].stop and "no further cause is tried" in d.steps[-1].stop
     # and the CLI and the HTML report say so
-    assert "could not be refitted" in render_diagnosis(d.to_dict())
+    assert says in render_diagnosis(d.to_dict())
     html = write_report(d, _arx_data(62, 2000, cubic=0.3), tmp_path / "r").read_text()
-    assert "could not be refitted" in html
+    assert says in html
 
 
 def test_effects_tried_on_workers_give_the_same_diagnosis():

@@ -340,3 +340,38 @@ def test_a_shape_contest_compares_the_models_handed_on(effect, seed, simpler):
         assert "the general curve gains less than min_gain more" in notes
     else:
         assert gains[effect] > gains["dead_zone"] + 0.25
+
+
+def test_a_speed_limit_inside_a_force_loop_is_named_in_its_loop():
+    """A series-elastic actuator whose motor's speed is limited (``bench_diagnose_chain.py
+    --plant sea``, seed 901): the limit binds on the force loop's state, not on the command,
+    so no lag or rate limit on the input shows (the gate of the loop's first route), but the
+    loop's step limit itself removes most of the misfit (the second route, docs/diagnose.md:
+    the table of effects).  Named ``saturation``, a static curve or friction before, on every
+    seed of the bench."""
+    bench = _tank_bench()
+    p, plant = bench.draw("actuator_lag", 901, bench.SEA_RANGES), bench.sea_plant(901)
+    asked = np.abs(bench.sea("none", {}, 901, plant)[1])
+    p["vmax"] = p["speed_share"] * float(np.quantile(asked, 0.95))
+    d = diagnose(
+        bench.sea("actuator_lag", p, 901, plant)[0], bench.sea("actuator_lag", p, 1401, plant)[0]
+    )
+    assert d.causes == ("actuator_lag",), [(f.effect, f.gain) for f in d.findings[:3]]
+    params = d.best.params
+    assert params["in_loop"] and params["loop_share"][0] > 1.0  # a spring stiffer than the load
+    # the step limit earns the loop's gain: the same loop as a linear lag gains nothing
+    assert params["step_limit_gain"] > 0.9 * d.best.test["train_gain"] > 5.0
+
+
+def test_a_loop_that_gains_as_a_linear_lag_is_not_named():
+    """The fast tanks with a pump curve (seed 801): after the curve, a loop with the load
+    gained 2.2 training points, 2.0 of them without its step limit — linear dynamics the
+    baseline's orders leave out, not an actuator's limit — and was named as a second cause
+    (+1.1 points, p_adj 1e-3) once the loop's grid reached further.  The step limit must earn
+    half of the loop's gain."""
+    bench = _tank_bench()
+    p = bench.draw("static_nonlinearity", 801, bench.TANK_RANGES)
+    train = bench.tanks("static_nonlinearity", p, 801, (2.0, 3.0))
+    valid = bench.tanks("static_nonlinearity", p, 1301, (2.0, 3.0))
+    d = diagnose(train, valid)
+    assert d.causes == ("static_nonlinearity",), [(s.cause, s.gain) for s in d.steps]

@@ -644,14 +644,14 @@ class _Divergent(_Unrefittable):
 
 
 @pytest.mark.parametrize(
-    ("effect", "says"),
+    ("effect", "says", "why"),
     [
-        (_Unrefittable, "could not be refitted"),
-        (_Divergent, "diverges on the validation data"),
+        (_Unrefittable, "could not be refitted", "the inner model diverges on the data"),
+        (_Divergent, "diverges on the validation data", "fit pos -inf %"),
     ],
 )
-def test_a_named_structure_that_cannot_be_refitted_ends_the_sequence_and_says_why(
-    tmp_path, effect, says
+def test_a_named_structure_that_cannot_start_the_next_step_ends_the_sequence_and_says_why(
+    tmp_path, effect, says, why
 ):
     import types
 
@@ -675,6 +675,7 @@ def test_a_named_structure_that_cannot_be_refitted_ends_the_sequence_and_says_wh
         unregister(name)
     assert d.causes == ("nonlinear_stiffness",)
     assert says in d.steps[-1].stop and "no further cause is tried" in d.steps[-1].stop
+    assert why in d.steps[-1].stop
     # and the CLI and the HTML report say so
     assert says in render_diagnosis(d.to_dict())
     html = write_report(d, _arx_data(62, 2000, cubic=0.3), tmp_path / "r").read_text()

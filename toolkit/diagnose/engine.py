@@ -1155,15 +1155,26 @@ def continue_sequence(
                 f"next step's baseline ({exc}), so no further cause is tried",
             )
             break
-        if not all(np.isfinite(v) for v in ref.fit.values()):
-            # a start that diverges on the validation data measures every gain against an
-            # infinite error: nothing it says is a gain, so the sequence ends here too
+        diverged = [
+            f"the {where} data (fit {fit_text})"
+            for where, fit_text, finite in (
+                (
+                    "validation",
+                    ", ".join(f"{n} {v:.1f} %" for n, v in ref.fit.items()),
+                    all(np.isfinite(v) for v in ref.fit.values()),
+                ),
+                ("training", f"{ctx.baseline_score:.1f} %", np.isfinite(ctx.baseline_score)),
+            )
+            if not finite
+        ]
+        if diverged:
+            # a start that diverges measures every gain against an infinite error (or every
+            # candidate's training score against one): nothing it says is a gain, so the
+            # sequence ends here too
             steps[-1] = dataclasses.replace(
                 steps[-1],
                 stop="the named extension refitted on the training data as the next step's "
-                "baseline diverges on the validation data (fit "
-                + ", ".join(f"{n} {v:.1f} %" for n, v in ref.fit.items())
-                + "), so no further cause is tried",
+                f"baseline diverges on {' and '.join(diverged)}, so no further cause is tried",
             )
             break
         bar.total = (bar.total or 0) + len(names) + 1

@@ -476,12 +476,21 @@ class Saturation:
         }
 
 
+#: Below this share of an output's spread, an output's response to an input is none at all
+#: (:func:`_static_gains`).
+SETTLE_FLOOR = 1e-6
+
+
 def _static_gains(model: Model, data: Dataset) -> np.ndarray | None:
     """``K[j, m]``: how far output ``j`` of ``model`` settles per unit of input ``m``, from a
     step of half the input's spread at the data's mean input (simulated: any representation,
-    terms included); None where an output does not settle or the simulation diverges."""
+    terms included); None where an output does not settle or the simulation diverges.  An
+    output that the input moves by less than ``SETTLE_FLOOR`` of the output's spread counts as
+    settled whatever its tail does (a round-off coupling on a slow mode of another output is
+    no plant that drifts)."""
     data = aligned(model, data)
     u, spread = data.u.mean(axis=0), data.u.std(axis=0)
+    floor = SETTLE_FLOOR * data.y.std(axis=0)
     n = min(max(len(data.u), 200), 4000)
     base = simulate(model, np.tile(u, (n, 1)))
     if not np.all(np.isfinite(base)):
@@ -494,10 +503,10 @@ def _static_gains(model: Model, data: Dataset) -> np.ndarray | None:
         step[:, m] += 0.5 * spread[m]
         y = simulate(model, step) - base
         tail = y[-n // 10 :]
-        # every output settled: its last tenth moves by less than 1 % of where it is
-        if not np.all(np.isfinite(y)) or np.any(
-            np.ptp(tail, axis=0) > 0.01 * np.abs(tail).max(axis=0)
-        ):
+        # every output settled: its last tenth moves by less than 1 % of where it is (or of
+        # the floor, for an output the input hardly moves)
+        scale = np.maximum(np.abs(tail).max(axis=0), floor)
+        if not np.all(np.isfinite(y)) or np.any(np.ptp(tail, axis=0) > 0.01 * scale):
             return None
         K[:, m] = y[-1] / (0.5 * spread[m])
     return K

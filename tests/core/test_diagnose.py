@@ -1334,6 +1334,15 @@ def test_the_loop_of_an_actuator_is_scaled_by_static_gains_and_steps_that_move()
         ARX((np.array([[-1.0]]),), (np.array([[0.1, 0.0]]),), (1, 1)),
     )  # fmt: skip
     assert _static_gains(integrator, data) is None
+    # a second output on a slow mode that the input reaches only by round-off counts as
+    # settled (it gave None: the loop was never tried on such a plant)
+    only_first = Model(
+        "one", 0.01, (Signal("f1"),), (Signal("pos"), Signal("slow")),
+        ARX((np.diag([-0.5, -0.9999]),), (np.array([[0.1], [1e-14]]),), (1,)),
+    )  # fmt: skip
+    outputs = np.c_[data.y, data.y]
+    first = Dataset.from_arrays(data.u[:, :1], outputs, 0.01, ["f1"], ["pos", "slow"])
+    np.testing.assert_allclose(_static_gains(only_first, first)[0], [0.2], rtol=1e-6)
     held = np.c_[np.repeat(np.arange(10.0), 50), np.arange(500.0) % 3]
     y = np.random.default_rng(0).normal(size=(500, 1))
     steps = Dataset.from_arrays(held, y, 0.01, ["f1", "f2"], ["pos"])

@@ -503,10 +503,10 @@ def _static_gains(model: Model, data: Dataset) -> np.ndarray | None:
         step[:, m] += 0.5 * spread[m]
         y = simulate(model, step) - base
         tail = y[-n // 10 :]
-        # every output settled: its last tenth moves by less than 1 % of where it is (or of
-        # the floor, for an output the input hardly moves)
-        scale = np.maximum(np.abs(tail).max(axis=0), floor)
-        if not np.all(np.isfinite(y)) or np.any(np.ptp(tail, axis=0) > 0.01 * scale):
+        # every output settled: its last tenth moves by less than 1 % of where it is, or the
+        # input moves it by less than the floor at all
+        moving = np.ptp(tail, axis=0) > 0.01 * np.abs(tail).max(axis=0)
+        if not np.all(np.isfinite(y)) or np.any(moving & (np.abs(y).max(axis=0) >= floor)):
             return None
         K[:, m] = y[-1] / (0.5 * spread[m])
     return K
@@ -562,29 +562,30 @@ class ActuatorLag:
 
     #: Share of the baseline's training misfit that the lag or rate limit on the inputs alone
     #: must remove for the loop with the load to be searched in full and used by the first
-    #: route (:meth:`extend`; otherwise only the probe below runs).  The loop's terms (a state per input
-    #: that the output feeds back into) are flexible enough to reshape other effects where no
-    #: lag is there to refine: on the robot plant with no lag they gained +0.6 to +1.7 points
-    #: for friction, play and a dead zone and +0.5 for the nominal plant with slack tendons
-    #: (named actuator_lag), where the lag alone removed 0.5 to 4.4 % of the misfit; with a
-    #: force-controller lag it removed 46 to 55 %.
+    #: route (:meth:`extend`; otherwise only the probe below runs).  The loop's terms (a state
+    #: per input that the output feeds back into) are flexible enough to reshape other effects
+    #: where no lag is there to refine: on the robot plant with no lag they gained +0.6 to
+    #: +1.7 points for friction, play and a dead zone and +0.5 for the nominal plant with
+    #: slack tendons (named actuator_lag), where the lag alone removed 0.5 to 4.4 % of the
+    #: misfit; with a force-controller lag it removed 46 to 55 %.
     loop_support = 0.1
     #: The second route: the share of the misfit that the loop's step limit itself must remove
     #: (its gain over the best loop without a step limit, ``step_limit_gain``) where the
-    #: inputs' lag does not show: a motor's speed limit inside a series-elastic actuator's force loop binds on the
-    #: loop's state, not on the command (there the step limit removed 43 to 67 % of the
-    #: misfit, the open-loop lag and rate limit under 4 %).  On the robot plant with friction,
-    #: play, a dead zone or no effect the loop removed at most 18 % of the misfit.
+    #: inputs' lag does not show: a motor's speed limit inside a series-elastic actuator's
+    #: force loop binds on the loop's state, not on the command (there the step limit removed
+    #: 43 to 67 % of the misfit, the open-loop lag and rate limit under 4 %).  On the robot
+    #: plant with friction, play, a dead zone or no effect the loop removed at most 18 % of
+    #: the misfit.
     loop_limit_share = 0.25
     #: On both routes the step limit must earn this share of the loop's gain: after a pump
     #: curve on the two tanks a loop admitted by the first route (the lag on the inputs removed
     #: 19 % of the misfit) gained 2.2 training points, 2.0 of them without its step limit — a
     #: linear reshaping, named actuator_lag as a second cause.
     loop_limit_earns = 0.5
-    #: Where the inputs' lag does not show, the grid is a probe (the first step quantile only)
-    #: and the pattern search runs only if its best removes this share of the misfit (0.11 to
-    #: 0.41 on the series-elastic actuator's speed limit): the search costs tens of fits, on
-    #: every ARX baseline and held-out fold.
+    #: Where the inputs' lag does not show, the grid is a probe (every other share, the first
+    #: step quantile: 6 fits) and the pattern search runs only if its best removes this share
+    #: of the misfit (0.11 to 0.41 on the series-elastic actuator's speed limit): the search
+    #: costs tens of fits, on every ARX baseline and held-out fold.
     loop_probe = 0.1
     #: Pattern search around the best grid point: the share and the time constant by factors
     #: of these, the quantile by this step, until no neighbour is better (at most
@@ -655,8 +656,8 @@ class ActuatorLag:
         limit = loop[0].get("step_limit_gain", -np.inf)
         by_limit = limit >= self.loop_limit_share * misfit
         # and on both routes the step limit earns `loop_limit_earns` of the loop's gain: a loop
-        # that gains as much as a linear lag is linear dynamics the baseline's orders leave
-        # out, not an actuator's limit
+        # that gains as much without its step limit (a linear loop) is linear dynamics the
+        # baseline's orders leave out, not an actuator's limit
         earned = limit >= self.loop_limit_earns * (loop[2] - ctx.baseline_score)
         if loop[1] is not None and loop[2] > score and (shown or by_limit) and earned:
             params, model, score = loop[:3]
@@ -695,6 +696,8 @@ class ActuatorLag:
         none: tuple[dict[str, Any], Model | None, float, list[Any]] = ({}, None, -np.inf, [])
         if not isinstance(rep, ARX) or rep.nb == 0 or not ctx.train.outputs:
             return none
+        if not np.isfinite(ctx.baseline_score):
+            return none  # a baseline that diverges on its training data: no misfit to share
         train = aligned(ctx.baseline, ctx.train)
         K = _static_gains(ctx.baseline, train)
         if K is None:
@@ -709,8 +712,9 @@ class ActuatorLag:
         for m in range(len(ins)):
             moved = np.abs(K[:, m]) * ustd[m] / ystd  # each output's move per input spread
             j = int(np.argmax(moved))
-            # an input that moves no output (beyond round-off) has no load to feel
-            if moved[j] > 1e-6 and steps[m] > 0:
+            # an input that moves no output (beyond the floor of _static_gains: a step of half
+            # the input's spread moves it by moved/2 of its spread) has no load to feel
+            if moved[j] > 2 * SETTLE_FLOOR and steps[m] > 0:
                 links.append((m, j, float(K[j, m])))
         if not links:
             return none

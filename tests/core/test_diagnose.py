@@ -682,6 +682,20 @@ def test_a_named_structure_that_cannot_start_the_next_step_ends_the_sequence_and
     assert says in html
 
 
+def test_a_start_that_diverges_is_said_where():
+    """The sequence ends where the next step's start diverges on the validation data, on the
+    training data, or both, and says which (``engine._divergence``)."""
+    from tendonkit.diagnose.engine import _divergence
+
+    inf = float("inf")
+    assert _divergence({"a": 90.0, "b": 80.0}, 95.0) == []
+    assert _divergence({"a": 90.0, "b": -inf}, 95.0) == [
+        "the validation data (fit a 90.0 %, b -inf %)"
+    ]
+    assert _divergence({"a": 90.0}, -inf) == ["the training data (fit -inf %)"]
+    assert len(_divergence({"a": -inf}, -inf)) == 2
+
+
 def test_effects_tried_on_workers_give_the_same_diagnosis():
     """jobs=2 (the task engine) names the same causes with the same numbers as jobs=1."""
     train = _arx_data(32, 3000, cubic=0.3, delay=3)
@@ -1338,11 +1352,18 @@ def test_the_loop_of_an_actuator_is_scaled_by_static_gains_and_steps_that_move()
     # settled (it gave None: the loop was never tried on such a plant)
     only_first = Model(
         "one", 0.01, (Signal("f1"),), (Signal("pos"), Signal("slow")),
-        ARX((np.diag([-0.5, -0.9999]),), (np.array([[0.1], [1e-14]]),), (1,)),
+        ARX((np.diag([-0.5, -0.9999]),), (np.array([[0.1], [1e-10]]),), (1,)),
     )  # fmt: skip
     outputs = np.c_[data.y, data.y]
     first = Dataset.from_arrays(data.u[:, :1], outputs, 0.01, ["f1"], ["pos", "slow"])
     np.testing.assert_allclose(_static_gains(only_first, first)[0], [0.2], rtol=1e-6)
+    # a coupling the input moves the slow output by more than the floor is a plant that drifts
+    drifts = only_first.replace(
+        representation=dataclasses.replace(
+            only_first.representation, B=(np.array([[0.1], [1e-4]]),)
+        )
+    )
+    assert _static_gains(drifts, first) is None
     held = np.c_[np.repeat(np.arange(10.0), 50), np.arange(500.0) % 3]
     y = np.random.default_rng(0).normal(size=(500, 1))
     steps = Dataset.from_arrays(held, y, 0.01, ["f1", "f2"], ["pos"])

@@ -375,3 +375,6 @@ def test_a_loop_that_gains_as_a_linear_lag_is_not_named():
     valid = bench.tanks("static_nonlinearity", p, 1301, (2.0, 3.0))
     d = diagnose(train, valid)
     assert d.causes == ("static_nonlinearity",), [(s.cause, s.gain) for s in d.steps]
+    # the second step's lag is the lag on the input, not the loop its step limit did not earn
+    lag = next(f for f in d.steps[1].findings if f.effect == "actuator_lag")
+    assert not lag.params.get("in_loop"), lag.params

@@ -1080,6 +1080,19 @@ def _start_from(
     return start, score_baseline(start, valid), ctx
 
 
+def _divergence(valid_fit: dict[str, float], train_score: float) -> list[str]:
+    """Where a step's start model diverges: ``"the validation data (fit …)"`` when a
+    validation fit is not finite, ``"the training data (fit …)"`` when its training score
+    is not (:func:`continue_sequence` ends there); empty when it simulates both."""
+    out = []
+    if not all(np.isfinite(v) for v in valid_fit.values()):
+        fits = ", ".join(f"{n} {v:.1f} %" for n, v in valid_fit.items())
+        out.append(f"the validation data (fit {fits})")
+    if not np.isfinite(train_score):
+        out.append(f"the training data (fit {train_score:.1f} %)")
+    return out
+
+
 class _Structure:
     """The named extension's structure as an identifier: the next step's refit."""
 
@@ -1117,7 +1130,9 @@ def continue_sequence(
     docs/diagnose.md, step 8), and tests them exactly as the first step does (Holm at
     ``alpha`` within the step); a named cause must then be confirmed by the refined models
     (:func:`confirm_step`).  The sequence stops at the first step where nothing is
-    significant or confirmed, or after ``max_causes`` causes: a fixed-sequence (gatekeeping)
+    significant or confirmed, or after ``max_causes`` causes, or where the named structure
+    cannot start the next step (it cannot be refitted, or its refit diverges on the training
+    or validation data: :func:`_divergence`): a fixed-sequence (gatekeeping)
     procedure, so the first step whose null hypothesis ("nothing more to find") is true is
     the only one that can add a false cause, with probability at most ``alpha``
     (docs/diagnose.md, *Several causes*).
@@ -1155,18 +1170,7 @@ def continue_sequence(
                 f"next step's baseline ({exc}), so no further cause is tried",
             )
             break
-        diverged = [
-            f"the {where} data (fit {fit_text})"
-            for where, fit_text, finite in (
-                (
-                    "validation",
-                    ", ".join(f"{n} {v:.1f} %" for n, v in ref.fit.items()),
-                    all(np.isfinite(v) for v in ref.fit.values()),
-                ),
-                ("training", f"{ctx.baseline_score:.1f} %", np.isfinite(ctx.baseline_score)),
-            )
-            if not finite
-        ]
+        diverged = _divergence(ref.fit, ctx.baseline_score)
         if diverged:
             # a start that diverges measures every gain against an infinite error (or every
             # candidate's training score against one): nothing it says is a gain, so the

@@ -554,9 +554,11 @@ class ActuatorLag:
     #: on a coarse grid, then one coordinate at a time around the best.  ``c`` can exceed 1
     #: (a stiff spring on a soft load feeds back more than the input's static effect; a
     #: series-elastic actuator's is its spring over the load's stiffness, 2.5 to 25 on
-    #: ``bench_diagnose_chain.py --plant sea``): the grid reaches 8, the pattern search
-    #: beyond.
-    loop_shares = (0.25, 0.5, 1.0, 2.0, 4.0, 8.0)
+    #: ``bench_diagnose_chain.py --plant sea``).  The first route's grid starts from loads up
+    #: to the input's static effect (``loop_shares``), the second route's probe spans stiff
+    #: springs (``probe_shares``, reaching 8; the pattern search goes beyond either).
+    loop_shares = (0.25, 0.5, 1.0)
+    probe_shares = (0.5, 2.0, 8.0)
     loop_taus = (4.0, 16.0)
     loop_quantiles = (0.2, 0.5)
 
@@ -582,7 +584,7 @@ class ActuatorLag:
     #: 19 % of the misfit) gained 2.2 training points, 2.0 of them without its step limit — a
     #: linear reshaping, named actuator_lag as a second cause.
     loop_limit_earns = 0.5
-    #: Where the inputs' lag does not show, the grid is a probe (every other share, the first
+    #: Where the inputs' lag does not show, the grid is a probe (``probe_shares``, the first
     #: step quantile: 6 fits) and the pattern search runs only if its best removes this share
     #: of the misfit (0.11 to 0.41 on the series-elastic actuator's speed limit): the search
     #: costs tens of fits, on every ARX baseline and held-out fold.
@@ -683,7 +685,7 @@ class ActuatorLag:
         of the command's nonzero steps), then a pattern search (``c`` of every input together
         and of each on its own).  ARX baselines whose outputs settle (a static gain exists).
         Where the lag on the inputs alone did not show (``shown`` false), the grid is a probe
-        (every other share, the first step quantile) and the search stops after it when its
+        (``probe_shares``, the first step quantile) and the search stops after it when its
         best removes less than ``loop_probe`` of the misfit.  Where the loop cannot be used
         (it does not beat ``beat``, the open-loop extension's score, or without ``shown`` its
         gain is under ``loop_limit_share`` of the misfit) the result has no
@@ -760,8 +762,8 @@ class ActuatorLag:
             return params, ctx.with_terms(terms)
 
         n = len(links)
-        # a probe (no lag shown on the inputs) tries every other share, the first quantile
-        shares = self.loop_shares if shown else self.loop_shares[1::2]
+        # a probe (no lag shown on the inputs) tries stiff springs, the first quantile
+        shares = self.loop_shares if shown else self.probe_shares
         quantiles = self.loop_quantiles if shown else self.loop_quantiles[:1]
         grid = [((c,) * n, t, q) for c in shares for t in self.loop_taus for q in quantiles]
         best = ctx.select(candidate(*g) for g in grid)
@@ -795,7 +797,8 @@ class ActuatorLag:
         # only: an infinite step is never handed on), at the grid's shares and time constants
         # and the chosen ones (a linear loop may go unstable at one share and fit at another)
         c, t = tuple(best[0]["loop_share"]), best[0]["tau_s"] / ctx.train.dt
-        linear = [((x,) * n, tt, None) for x in self.loop_shares for tt in self.loop_taus]
+        every = sorted({*self.loop_shares, *self.probe_shares})
+        linear = [((x,) * n, tt, None) for x in every for tt in self.loop_taus]
         lin = ctx.select(candidate(*g) for g in [(c, t, None), *linear])[2]
         best[0]["linear_loop_gain"] = float(lin - ctx.baseline_score)
         best[0]["step_limit_gain"] = float(best[2] - max(lin, ctx.baseline_score))

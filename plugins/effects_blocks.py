@@ -581,8 +581,9 @@ class ActuatorLag:
     loop_limit_share = 0.25
     #: On both routes the step limit must earn this share of the loop's gain: after a pump
     #: curve on the two tanks a loop admitted by the first route (the lag on the inputs removed
-    #: 19 % of the misfit) gained 2.2 training points, 2.0 of them without its step limit — a
-    #: linear reshaping, named actuator_lag as a second cause.
+    #: 19 % of the misfit; its grid then reached shares of 8) gained 2.2 training points, 2.0
+    #: of them without its step limit — a linear reshaping, named actuator_lag as a second
+    #: cause (:meth:`loop_used`).
     loop_limit_earns = 0.5
     #: Where the inputs' lag does not show, the grid is a probe (``probe_shares``, the first
     #: step quantile: 6 fits) and the pattern search runs only if its best removes this share
@@ -656,14 +657,22 @@ class ActuatorLag:
         shown = model is not None and score - ctx.baseline_score >= self.loop_support * misfit
         loop = self._in_loop(ctx, shown=shown, beat=score)
         limit = loop[0].get("step_limit_gain", -np.inf)
-        by_limit = limit >= self.loop_limit_share * misfit
-        # and on both routes the step limit earns `loop_limit_earns` of the loop's gain: a loop
-        # that gains as much without its step limit (a linear loop) is linear dynamics the
-        # baseline's orders leave out, not an actuator's limit
-        earned = limit >= self.loop_limit_earns * (loop[2] - ctx.baseline_score)
-        if loop[1] is not None and loop[2] > score and (shown or by_limit) and earned:
+        gain = loop[2] - ctx.baseline_score
+        if loop[1] is not None and loop[2] > score and self.loop_used(misfit, shown, gain, limit):
             params, model, score = loop[:3]
         return ctx.extension(params, model, score, self.description)
+
+    def loop_used(self, misfit: float, shown: bool, gain: float, limit: float) -> bool:
+        """Whether a loop that gains ``gain`` training points over a baseline of training
+        misfit ``misfit``, ``limit`` of them its step limit's (``step_limit_gain``), is used:
+        by the first route (``shown``: the lag on the inputs removed ``loop_support`` of the
+        misfit) or the second (the step limit alone removes ``loop_limit_share`` of it), and on
+        both only where the step limit earns ``loop_limit_earns`` of the gain — a loop that
+        gains as much without its step limit (a linear loop) is linear dynamics the baseline's
+        orders leave out, not an actuator's limit."""
+        by_limit = limit >= self.loop_limit_share * misfit
+        earned = limit >= self.loop_limit_earns * gain
+        return bool((shown or by_limit) and earned)
 
     def _in_loop(
         self, ctx: Context, *, shown: bool, beat: float = -np.inf
@@ -690,8 +699,9 @@ class ActuatorLag:
         (it does not beat ``beat``, the open-loop extension's score, or without ``shown`` its
         gain is under ``loop_limit_share`` of the misfit) the result has no
         ``step_limit_gain``; otherwise ``step_limit_gain`` is the loop's training gain over
-        the best loop without a step limit (a linear lag, at the grid's shares and time
-        constants and the chosen ones; floored at the baseline's score), and
+        the best loop without a step limit (a linear lag, at the shares of both grids,
+        ``loop_shares`` and ``probe_shares``, the time constants and the chosen ones; floored
+        at the baseline's score), and
         ``linear_loop_gain`` that loop's own gain.
         """
         rep = ctx.baseline.representation
@@ -794,7 +804,7 @@ class ActuatorLag:
         ):
             return best  # it cannot be used (no step_limit_gain): the check below is not run
         # what the step limit itself adds: the best loop without one (a linear lag, scored
-        # only: an infinite step is never handed on), at the grid's shares and time constants
+        # only: an infinite step is never handed on), at both grids' shares, the time constants
         # and the chosen ones (a linear loop may go unstable at one share and fit at another)
         c, t = tuple(best[0]["loop_share"]), best[0]["tau_s"] / ctx.train.dt
         every = sorted({*self.loop_shares, *self.probe_shares})

@@ -682,6 +682,26 @@ def test_a_named_structure_that_cannot_start_the_next_step_ends_the_sequence_and
     assert says in html
 
 
+def test_a_loop_is_used_where_its_step_limit_earns_the_gain():
+    """``ActuatorLag.loop_used``: the loop with the load by its first route (the lag on the
+    inputs shows) or its second (the step limit alone removes a quarter of the misfit), on
+    both only where the step limit earns half of the loop's gain.  The numbers are the cases
+    the rule was measured on (training points)."""
+    from tendonkit.plugins.effects_blocks import ActuatorLag
+
+    lag = ActuatorLag()
+    # the robot's force loop: the lag shows, the step limit earns all of the gain
+    assert lag.loop_used(misfit=28.9, shown=True, gain=19.9, limit=19.9)
+    # after the fast tanks' pump curve: the lag showed, but a linear loop gained 2.0 of 2.2
+    assert not lag.loop_used(misfit=7.67, shown=True, gain=2.22, limit=0.22)
+    # the series-elastic actuator's speed limit: no lag shows, the step limit removes 67 %
+    assert lag.loop_used(misfit=32.78, shown=False, gain=21.8, limit=21.8)
+    # friction on the robot: no lag shows, the loop removes 18 % (its step limit 16 %)
+    assert not lag.loop_used(misfit=7.94, shown=False, gain=1.39, limit=1.28)
+    # no step limit measured (the loop could not be used): never
+    assert not lag.loop_used(misfit=30.0, shown=True, gain=10.0, limit=float("-inf"))
+
+
 def test_a_start_that_diverges_is_said_where():
     """The sequence ends where the next step's start diverges on the validation data, on the
     training data, or both, and says which (``engine._divergence``)."""

@@ -367,8 +367,10 @@ def test_a_loop_that_gains_as_a_linear_lag_is_not_named():
     """The fast tanks with a pump curve (seed 801): after the curve, a loop with the load
     gained 2.2 training points, 2.0 of them without its step limit — linear dynamics the
     baseline's orders leave out, not an actuator's limit — and was named as a second cause
-    (+1.1 points, p_adj 1e-3) once the loop's grid reached further.  The step limit must earn
-    half of the loop's gain."""
+    (+1.1 points, p_adj 1e-3) while the first route's grid reached shares up to 8.  With its
+    grid back at (1/4, 1/2, 1) that loop is no longer found; the rule that the step limit must
+    earn half of the loop's gain, which refused it, is tested on its own in
+    ``test_a_loop_is_used_where_its_step_limit_earns_the_gain`` (tests/core)."""
     bench = _tank_bench()
     p = bench.draw("static_nonlinearity", 801, bench.TANK_RANGES)
     train = bench.tanks("static_nonlinearity", p, 801, (2.0, 3.0))

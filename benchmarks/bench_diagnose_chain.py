@@ -228,6 +228,17 @@ def sea(
     return Dataset(inputs=("F_cmd",), outputs=("x",), experiments=(e,), dt=DT), speed
 
 
+def sea_case(effect: str, seed: int) -> tuple[dict[str, float], Dataset, Dataset]:
+    """The series-elastic actuator's case: its effect's parameters, training record (``seed``)
+    and validation record (``seed + 500``); the speed limit is a share of the speed the free
+    loop asks for."""
+    p, sp = draw(effect, seed, SEA_RANGES), sea_plant(seed)
+    if effect == "actuator_lag":
+        asked = np.abs(sea("none", {}, seed, sp)[1])
+        p["vmax"] = p["speed_share"] * float(np.quantile(asked, 0.95))
+    return p, sea(effect, p, seed, sp)[0], sea(effect, p, seed + 500, sp)[0]
+
+
 def case(shared: Any, job: tuple[str, int]) -> dict[str, Any]:
     """One diagnosis at default options."""
     from tendonkit.diagnose import diagnose
@@ -238,11 +249,7 @@ def case(shared: Any, job: tuple[str, int]) -> dict[str, Any]:
         p = draw(effect, seed, TANK_RANGES)
         train, valid = tanks(effect, p, seed, areas), tanks(effect, p, seed + 500, areas)
     elif plant == "sea":
-        p, sp = draw(effect, seed, SEA_RANGES), sea_plant(seed)
-        if effect == "actuator_lag":  # a share of the speed the free loop asks for
-            asked = np.abs(sea("none", {}, seed, sp)[1])
-            p["vmax"] = p["speed_share"] * float(np.quantile(asked, 0.95))
-        train, valid = sea(effect, p, seed, sp)[0], sea(effect, p, seed + 500, sp)[0]
+        p, train, valid = sea_case(effect, seed)
     else:
         p = draw(effect, seed)
         train, valid = chain(effect, p, seed), chain(effect, p, seed + 500)

@@ -806,10 +806,10 @@ class ActuatorLag:
         # what the step limit itself adds: the best loop without one (a linear lag, scored
         # only: an infinite step is never handed on), at both grids' shares, the time constants
         # and the chosen ones (a linear loop may go unstable at one share and fit at another)
-        c, t = tuple(best[0]["loop_share"]), best[0]["tau_s"] / ctx.train.dt
+        chosen = (tuple(best[0]["loop_share"]), best[0]["tau_s"] / ctx.train.dt, None)
         every = sorted({*self.loop_shares, *self.probe_shares})
-        linear = [((x,) * n, tt, None) for x in every for tt in self.loop_taus]
-        lin = ctx.select(candidate(*g) for g in [(c, t, None), *linear])[2]
+        linear = {chosen, *(((x,) * n, tt, None) for x in every for tt in self.loop_taus)}
+        lin = ctx.select(candidate(*g) for g in linear)[2]
         best[0]["linear_loop_gain"] = float(lin - ctx.baseline_score)
         best[0]["step_limit_gain"] = float(best[2] - max(lin, ctx.baseline_score))
         return best

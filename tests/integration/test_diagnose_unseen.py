@@ -349,13 +349,8 @@ def test_a_speed_limit_inside_a_force_loop_is_named_in_its_loop():
     loop's step limit itself removes most of the misfit (the second route, docs/diagnose.md:
     the table of effects).  Named ``saturation``, a static curve or friction before, on every
     seed of the bench."""
-    bench = _tank_bench()
-    p, plant = bench.draw("actuator_lag", 901, bench.SEA_RANGES), bench.sea_plant(901)
-    asked = np.abs(bench.sea("none", {}, 901, plant)[1])
-    p["vmax"] = p["speed_share"] * float(np.quantile(asked, 0.95))
-    d = diagnose(
-        bench.sea("actuator_lag", p, 901, plant)[0], bench.sea("actuator_lag", p, 1401, plant)[0]
-    )
+    _, train, valid = _tank_bench().sea_case("actuator_lag", 901)
+    d = diagnose(train, valid)
     assert d.causes == ("actuator_lag",), [(f.effect, f.gain) for f in d.findings[:3]]
     params = d.best.params
     assert params["in_loop"] and params["loop_share"][0] > 1.0  # a spring stiffer than the load

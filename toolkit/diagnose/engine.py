@@ -1158,28 +1158,25 @@ def continue_sequence(
         if not names:
             break
         before = tuple((s.cause, s.params, s.index) for s in steps if s.cause != "none")
+        # the named structure refitted as the next step's baseline can fail where the named
+        # model did not (a Wiener curve whose inner model now diverges), or diverge, which
+        # would measure every gain against an infinite error: the causes named so far stand,
+        # and the sequence ends there, saying why
+        why = ""
         try:
             start, ref, ctx = _start_from(build, train, valid, settings, refined, before)
         except _FIT_ERRORS as exc:
-            # the named structure refitted as the next step's baseline can fail where the
-            # named model did not (a Wiener curve whose inner model now diverges): the causes
-            # named so far stand, and the sequence ends there, saying why
-            steps[-1] = dataclasses.replace(
-                steps[-1],
-                stop=f"the named extension could not be refitted on the training data as the "
-                f"next step's baseline ({exc}), so no further cause is tried",
-            )
-            break
-        diverged = _divergence(ref.fit, ctx.baseline_score)
-        if diverged:
-            # a start that diverges measures every gain against an infinite error (or every
-            # candidate's training score against one): nothing it says is a gain, so the
-            # sequence ends here too
-            steps[-1] = dataclasses.replace(
-                steps[-1],
-                stop="the named extension refitted on the training data as the next step's "
-                f"baseline diverges on {' and '.join(diverged)}, so no further cause is tried",
-            )
+            why = f"could not be refitted on the training data as the next step's baseline ({exc})"
+        else:
+            diverged = _divergence(ref.fit, ctx.baseline_score)
+            if diverged:
+                why = (
+                    "refitted on the training data as the next step's baseline diverges on "
+                    + " and ".join(diverged)
+                )
+        if why:
+            stop = f"the named extension {why}, so no further cause is tried"
+            steps[-1] = dataclasses.replace(steps[-1], stop=stop)
             break
         bar.total = (bar.total or 0) + len(names) + 1
         bar.set_description(f"diagnose: step {len(steps) + 1}")

@@ -19,8 +19,8 @@ The procedure, for any registered identifier as the baseline and any registered 
 4. **Gain.** Each extended model is simulated on the validation data.  The gain is the change
    in mean fit (percentage points); findings are ranked by it.
 5. **Significance.** :func:`loss_test` on the per-sample validation losses: a one-sided
-   t-test over contiguous batches (4 integrated autocorrelation times long, 5–50 of them) of
-   ``log((1 - δ)·L_base,b / L_ext,b)`` — the extension must remove more than the margin
+   t-test over contiguous batches (4 integrated autocorrelation times long, 5–50 of them,
+   every start: overlapping batch means) of ``log((1 - δ)·L_base,b / L_ext,b)`` — the extension must remove more than the margin
    ``δ = min_relative_gain`` of the baseline's error energy in a typical stretch of the
    record, and gain at least ``min_gain`` points of fit (an effect size worth naming).  The p-values are Holm-adjusted over the effects tried, weighted by the effects'
    *training* gains (fixed before the validation data are looked at).  Noise alone then

@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 
 from ..schema import Model
 from .residuals import ResidualAnalysis
-from .stats import routes_p_value
+from .stats import obm_dof, routes_p_value
 
 FloatArray = NDArray[np.float64]
 
@@ -566,8 +566,9 @@ def more_data_factor(finding: dict[str, Any], alpha: float, n_findings: int) -> 
     For each loss route (free run, one-step prediction) the one-sided t-statistic of the
     batch log-ratios, ``t = (mean + log(1 - margin)) / std_error``, grows with the square root
     of the record's length if the gain holds.  A record ``K`` times as long has
-    ``clip(K·n / (4 τ), 5, 50)`` batches (:func:`tendonkit.diagnose.stats.loss_test`), and
-    needs ``t·√K`` above the t quantile of the route's share of the level after the Holm
+    ``clip(K·n / (4 τ), 5, 50)`` batches (:func:`tendonkit.diagnose.stats.loss_test`; the
+    degrees of freedom of :func:`tendonkit.diagnose.stats.obm_dof`), and needs ``t·√K`` above
+    the t quantile of the route's share of the level after the Holm
     adjustment (read from the finding's p-value and adjusted p-value; a capped adjustment
     counts every finding).  The smallest such ``K`` on a grid up to :data:`MORE_DATA_CAP`,
     over the routes; ``inf`` above it, None when no route points the right way.  An estimate
@@ -595,8 +596,10 @@ def more_data_factor(finding: dict[str, Any], alpha: float, n_findings: int) -> 
     level = alpha / (max(holm, 1.0) * max(k, 1))
     for factor in np.geomspace(1.0, MORE_DATA_CAP, 61):
         for t, n, tau in routes:
-            batches = int(np.clip((factor * n) // max(math.ceil(4.0 * tau), 1), 5, 50))
-            if t * math.sqrt(factor) >= stats.t.ppf(1.0 - level, batches - 1):
+            longer = int(factor * n)
+            batches = int(np.clip(longer // max(math.ceil(4.0 * tau), 1), 5, 50))
+            dof = obm_dof(longer, longer // batches, 4.0 * tau)
+            if t * math.sqrt(factor) >= stats.t.ppf(1.0 - level, dof):
                 return float(factor)
     return math.inf
 

@@ -91,11 +91,14 @@ def loss_test(
 
     1. the batch length is ``k`` integrated autocorrelation times of the loss difference
        (:func:`autocorrelation_time`), so that batch statistics are nearly independent; the
-       number of batches is clamped to ``[min_batches, max_batches]``;
+       number of batches ``b`` is clamped to ``[min_batches, max_batches]``;
     2. per batch, ``r_b = log((1 - margin)·mean(reference_b)) - log(mean(alternative_b))``,
        the log of the batch's error-energy ratio: scale-free, so a batch of large motion does
-       not outweigh every other batch;
-    3. a one-sided t-test of ``mean(r_b) > 0`` with ``n_batches - 1`` degrees of freedom.
+       not outweigh every other batch — for every window of the batch length, overlapping
+       (overlapping batch means, Meketon & Schmeiser 1984);
+    3. a one-sided t-test of ``mean(r_b) > 0`` with the overlapping-batch-means variance and
+       its :func:`obm_dof` degrees of freedom (``1.5 (b - 1)``, with ``b`` no more than the
+       batches of ``k`` τ the record holds).
 
     The null hypothesis is "the alternative does not remove more than ``margin`` of the
     reference's error energy in a typical stretch of the record".  Pure noise and an
@@ -130,18 +133,38 @@ def loss_test(
         return LossTest(1.0, float("nan"), float("nan"), 0, 0, float("nan"))
     length = math.ceil(k * tau)
     b = int(np.clip(n // max(length, 1), min_batches, max_batches))
+    size = n // b
     tiny = 1e-12 * max(float(np.mean(ref)), float(np.mean(alt)), 1e-300)
-    mr = np.array([c.mean() for c in np.array_split(ref, b)]) + tiny
-    ma = np.array([c.mean() for c in np.array_split(alt, b)]) + tiny
+    # every window of the batch length, overlapping (Meketon & Schmeiser 1984)
+    mr = _window_means(ref, size) + tiny
+    ma = _window_means(alt, size) + tiny
     r = np.log(mr / ma)
     mean = float(r.mean())
-    se = float(r.std(ddof=1)) / math.sqrt(b)
+    # Var(mean) ≈ size · Σ (r_j - mean)² / ((n - size + 1)(n - size)), the OBM estimator
+    se = math.sqrt(size * float(np.sum((r - mean) ** 2)) / (len(r) * (n - size)))
     shifted = mean + math.log(1.0 - margin)
     if se == 0:
         p = 0.0 if shifted > 0 else 1.0
     else:
-        p = float(stats.t.sf(shifted / se, df=b - 1))
-    return LossTest(p, mean, se, b, n // b, tau)
+        p = float(stats.t.sf(shifted / se, df=obm_dof(n, size, k * tau)))
+    return LossTest(p, mean, se, b, size, tau)
+
+
+def obm_dof(n: int, size: int, independent: float) -> float:
+    """Degrees of freedom of the overlapping-batch-means variance: ``1.5 (b - 1)``
+    (Meketon & Schmeiser 1984; Welch 1987), half as many again as the same record cut into
+    ``b`` non-overlapping batches — with ``b`` the number of batches of length
+    ``independent`` (``k`` autocorrelation times) the record holds, where it holds fewer than
+    the clamp's minimum: batches made shorter than that are not independent, and counting
+    them overstated the evidence (the null's rejection rate at α = 1 % rose to 3.5–5.5 % on
+    records of 1–5 τ'). At least one."""
+    return max(1.0, 1.5 * (min(n / size, n / max(independent, 1.0)) - 1.0))
+
+
+def _window_means(x: FloatArray, size: int) -> FloatArray:
+    """Means of every window of ``size`` consecutive samples (``len(x) - size + 1`` of them)."""
+    c = np.concatenate([[0.0], np.cumsum(x)])
+    return np.asarray((c[size:] - c[:-size]) / size, dtype=float)
 
 
 def routes_p_value(

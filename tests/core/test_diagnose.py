@@ -67,10 +67,11 @@ def _separate_batches_p(ref, alt, margin, b):
 @pytest.mark.parametrize(("seed", "stronger"), [(2, True), (4, False)])
 def test_loss_test_counts_the_evidence_the_record_holds(seed, stronger):
     """Overlapping batches give a record a few autocorrelation times long more evidence than
-    five separate batches (a consistent gain of e^4 in error energy: the slow tanks' pump
-    curve, +59 points, was p = 0.002 on five batches and not named) — but where the record
-    holds fewer than five batches of 4 τ, they count only the batches it holds (separate
-    batches shorter than 4 τ overstate the evidence: the null's rejection rate rose to 5 %)."""
+    five separate batches (here a consistent gain of e^4 in error energy; by analogy, the slow
+    tanks' pump curve, +59 points, was p = 0.002 on five separate batches and not named) — but
+    where the record holds fewer than five batches of 4 τ, they count only the batches it
+    holds (separate batches shorter than 4 τ overstate the evidence: the null's rejection rate
+    rose to 5 %; docs/diagnose.md, "Statistics")."""
     rng = np.random.default_rng(seed)
     n = 3000
     base = (_ar1(rng, 0.998, n) + 0.05 * rng.standard_normal(n)) ** 2
@@ -78,10 +79,10 @@ def test_loss_test_counts_the_evidence_the_record_holds(seed, stronger):
     test = loss_test(base, alt, margin=0.02)
     assert test.n_batches == 5  # the clamp: the record is short against 4 τ
     reference = _separate_batches_p(base, alt, 0.02, test.n_batches)
-    if stronger:  # about five batches of 4 τ: fifteen times the evidence, and more
+    if stronger:  # about five batches of 4 τ: a p-value ten times smaller, or more
         assert n / (4 * test.tau) > 4.0
         assert test.p_value < reference / 10
-    else:  # under two batches of 4 τ: fewer degrees of freedom than four
+    else:  # under two batches of 4 τ: fewer degrees of freedom than four (here one)
         assert n / (4 * test.tau) < 2.0
         assert test.p_value > reference * 10
 

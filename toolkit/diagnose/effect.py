@@ -239,6 +239,13 @@ class Extension:
     #: model).  Set by :meth:`Context.extension` for models chosen with :meth:`Context.select`;
     #: without it the sequence stops after this cause.
     build: Callable[[Dataset], Model] | None = None
+    #: The extended structure without the effect itself, where it is not the baseline: a
+    #: *linear* model of more freedom than the baseline that the extension is built on (a
+    #: curve between two filters has the filters, and the baseline's structure identified
+    #: again behind them).  The extension must then beat it too on every route of the
+    #: validation test (an intersection–union test: each route's p-value is the larger of the
+    #: two), so that the gain of the added linear freedom is not read as the effect.
+    linear_part: Model | None = None
 
     @property
     def n_params(self) -> int:

@@ -629,6 +629,11 @@ def try_effect(
         ptest = loss_test(base_pred, pred, margin=delta)
         loss_routes["prediction"] = ptest.p_value
         test_info["prediction"] = {**ptest.to_dict(), "horizon": PREDICTION_HORIZON}
+    if ext.linear_part is not None:
+        loss_routes = _beyond_linear_part(
+            ext.linear_part, ref.y, loss, pred, loss_routes, valid, delta
+        )
+        test_info["linear_part"] = dict(loss_routes)
     # The screen can only lower a p-value below alpha where a route is below it already.
     screen = (
         screen_routes(ctx, ext.model, list(loss_routes), settings)
@@ -679,6 +684,31 @@ def try_effect(
         build=ext.build,
         prediction_loss=pred,
     )
+
+
+def _beyond_linear_part(
+    linear: Model,
+    y: FloatArray,
+    loss: FloatArray,
+    pred: FloatArray | None,
+    routes: dict[str, float],
+    valid: Dataset,
+    delta: float,
+) -> dict[str, float]:
+    """Each route's p-value against the baseline *and* against the extension's linear part
+    (:attr:`Extension.linear_part`): the larger of the two, an intersection–union test (the
+    extension must beat both; each test at the level keeps the level).  A linear part that
+    cannot be simulated or predicted leaves that route at 1 (no evidence beyond it)."""
+    ref = {"simulation": _loss(y, simulate_all(linear, valid))}
+    if "prediction" in routes:
+        ref["prediction"] = prediction_losses(linear, valid)  # type: ignore[assignment]
+    ext = {"simulation": loss, "prediction": pred}
+    out = {}
+    for route, p in routes.items():
+        r, e = ref.get(route), ext.get(route)
+        beyond = loss_test(r, e, margin=delta).p_value if r is not None and e is not None else 1.0
+        out[route] = max(p, beyond)
+    return out
 
 
 def _extend(effect: Effect, ctx: Context) -> Extension | None:

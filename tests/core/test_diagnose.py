@@ -715,6 +715,51 @@ def test_a_named_structure_that_cannot_start_the_next_step_ends_the_sequence_and
     assert says in html
 
 
+class _Shadowed(_Unrefittable):
+    """The built-in stiffness effect with a linear part of its own: as a curve between two
+    filters has — here a copy of the extension itself, which it cannot beat."""
+
+    name = "shadowed"
+
+    def extend(self, ctx):
+        ext = self._inner.extend(ctx)
+        return None if ext is None else dataclasses.replace(ext, linear_part=ext.model)
+
+
+def test_an_extension_must_beat_its_own_linear_part_on_every_route():
+    """The intersection–union test of ``Extension.linear_part``: the cubic stiffness that the
+    plain effect names (``test_a_cubic_stiffness_is_found_…``) is not named when its linear
+    part is as good as itself — on the validation routes and on the held-out blocks."""
+    import types
+
+    from tendonkit import hookimpl
+    from tendonkit.manager import register, unregister
+
+    plugin = types.SimpleNamespace(
+        tendonkit_register_effects=hookimpl(lambda registry: registry.add(_Shadowed()))
+    )
+    name = register(plugin, name="shadowed-test")
+    try:
+        train, valid = _arx_data(31, 3000, cubic=0.3), _arx_data(32, 2000, cubic=0.3)
+        kw = {"method": "arx", "options": {"na": 2, "nb": 1}, "refine": False}
+        plain = diagnose(train, valid, effects=["nonlinear_stiffness"], **kw)
+        d = diagnose(train, valid, effects=["shadowed"], **kw)
+        e = valid.experiments[0]
+        short = Experiment(t=e.t[:36], u=e.u[:36], y=e.y[:36], name="short")
+        held = diagnose(train, valid.with_experiments([short]), effects=["shadowed"], **kw)
+    finally:
+        unregister(name)
+    assert plain.cause == "nonlinear_stiffness" and plain.best.p_value < 1e-6
+    (f,) = d.findings
+    assert d.cause == "none" and f.gain == pytest.approx(plain.best.gain)
+    assert f.test["p_value"] < 1e-6  # against the baseline alone it is significant
+    assert min(f.test["linear_part"].values()) > 0.5 and f.p_value > 0.5
+    # a validation record too short for the test: the held-out blocks show it against the
+    # baseline, and nothing against its linear part
+    (h,) = held.findings
+    assert h.test["held_out"]["linear_part"] > 0.5 and h.test["held_out"]["p_value"] > 0.5
+
+
 def test_a_loop_is_used_where_its_step_limit_earns_the_gain():
     """``ActuatorLag.loop_used``: the loop with the load by its first route (the lag on the
     inputs shows) or its second (the step limit alone removes a quarter of the misfit), on

@@ -630,10 +630,9 @@ def try_effect(
         loss_routes["prediction"] = ptest.p_value
         test_info["prediction"] = {**ptest.to_dict(), "horizon": PREDICTION_HORIZON}
     if ext.linear_part is not None:
-        loss_routes = _beyond_linear_part(
-            ext.linear_part, ref.y, loss, pred, loss_routes, valid, delta
-        )
-        test_info["linear_part"] = dict(loss_routes)
+        beyond = _beyond_linear_part(ext.linear_part, ref.y, loss, pred, loss_routes, valid, delta)
+        test_info["linear_part"] = beyond
+        loss_routes = {r: max(p, beyond[r]) for r, p in loss_routes.items()}
     # The screen can only lower a p-value below alpha where a route is below it already.
     screen = (
         screen_routes(ctx, ext.model, list(loss_routes), settings)
@@ -695,20 +694,26 @@ def _beyond_linear_part(
     valid: Dataset,
     delta: float,
 ) -> dict[str, float]:
-    """Each route's p-value against the baseline *and* against the extension's linear part
-    (:attr:`Extension.linear_part`): the larger of the two, an intersection–union test (the
-    extension must beat both; each test at the level keeps the level).  A linear part that
-    cannot be simulated or predicted leaves that route at 1 (no evidence beyond it)."""
-    ref = {"simulation": _loss(y, simulate_all(linear, valid))}
+    """Each route's p-value of the extension against its linear part
+    (:attr:`Extension.linear_part`); the caller takes the larger of it and the route's
+    p-value against the baseline, an intersection–union test (the extension must beat both;
+    each test at the level keeps the level).  A linear part that cannot be simulated or
+    predicted gives that route 1 (no evidence beyond it)."""
+    ref: dict[str, FloatArray | None] = {"simulation": None, "prediction": None}
+    try:
+        ref["simulation"] = _loss(y, simulate_all(linear, valid))
+    except _NUMERICAL_ERRORS:
+        pass
     if "prediction" in routes:
-        ref["prediction"] = prediction_losses(linear, valid)  # type: ignore[assignment]
+        ref["prediction"] = prediction_losses(linear, valid)
     ext = {"simulation": loss, "prediction": pred}
-    out = {}
-    for route, p in routes.items():
+    beyond = {}
+    for route in routes:
         r, e = ref.get(route), ext.get(route)
-        beyond = loss_test(r, e, margin=delta).p_value if r is not None and e is not None else 1.0
-        out[route] = max(p, beyond)
-    return out
+        beyond[route] = (
+            loss_test(r, e, margin=delta).p_value if r is not None and e is not None else 1.0
+        )
+    return beyond
 
 
 def _extend(effect: Effect, ctx: Context) -> Extension | None:
@@ -727,8 +732,14 @@ def _at_fallback_optimum(ext: Extension, ctx: Context) -> Extension:
     if not isinstance(ctx.identifier, RefinedFallback):
         return ext
     refined = _refined(ext.model, ctx.train, blocks=False, max_nfev=CANDIDATE_MAX_NFEV)
+    linear = ext.linear_part
+    if linear is not None:  # compared at its own optimum too
+        linear = _refined(linear, ctx.train, blocks=False, max_nfev=CANDIDATE_MAX_NFEV)
     return dataclasses.replace(
-        ext, model=refined, train_gain=ctx.score(refined) - ctx.baseline_score
+        ext,
+        model=refined,
+        train_gain=ctx.score(refined) - ctx.baseline_score,
+        linear_part=linear,
     )
 
 
@@ -918,24 +929,40 @@ def held_out_test(effect: Effect, ctx: Context, settings: Settings) -> dict[str,
     folds = _held_out_folds(ctx)
     if not folds:
         return {"p_value": 1.0, "reason": "no held-out blocks (records too short)"}
-    base_losses, ext_losses = [], []
+    base_losses, ext_losses, linear_losses = [], [], []
+    linear_seen = False
     try:
         for fold, held, base_loss in folds:
             ext = _extend(effect, fold)
             if ext is None:
                 return {"p_value": 1.0, "reason": "the effect does not apply on a fold"}
-            model = _at_fallback_optimum(ext, fold).model
+            ext = _at_fallback_optimum(ext, fold)
+            model = ext.model
             y, sim = _sim_pair(model, held)
-            skip = max(initial_span(fold.baseline), initial_span(model))
+            spans = [initial_span(fold.baseline), initial_span(model)]
+            if ext.linear_part is not None:
+                spans.append(initial_span(ext.linear_part))
+            skip = max(spans)
             keep = np.concatenate([np.arange(e.n_samples) >= skip for e in held.experiments])
             base_losses.append(base_loss[keep])
             ext_losses.append(_loss(y, sim)[keep])
+            # the extension's linear part, where it has one, is beaten on this route too
+            if ext.linear_part is not None:
+                linear_seen = True
+                y_lin, sim_lin = _sim_pair(ext.linear_part, held)
+                linear_losses.append(_loss(y_lin, sim_lin)[keep])
+            else:
+                linear_losses.append(base_loss[keep])
     except _FIT_ERRORS as exc:
         return {"p_value": 1.0, "reason": f"a fold cannot be fitted: {type(exc).__name__}"}
-    t = loss_test(
-        np.concatenate(base_losses), np.concatenate(ext_losses), margin=settings.min_relative_gain
-    )
-    return {**t.to_dict(), "folds": len(folds), "samples": int(sum(len(b) for b in base_losses))}
+    margin = settings.min_relative_gain
+    ext_all = np.concatenate(ext_losses)
+    t = loss_test(np.concatenate(base_losses), ext_all, margin=margin)
+    out = {**t.to_dict(), "folds": len(folds), "samples": int(sum(len(b) for b in base_losses))}
+    if linear_seen:
+        beyond = loss_test(np.concatenate(linear_losses), ext_all, margin=margin).p_value
+        out = {**out, "p_value": max(t.p_value, beyond), "linear_part": beyond}
+    return out
 
 
 def _training_losses(model: Model, train: Dataset) -> dict[str, FloatArray | None]:

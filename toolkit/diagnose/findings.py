@@ -578,8 +578,12 @@ def more_data_factor(finding: dict[str, Any], alpha: float, n_findings: int) -> 
     from scipy import stats
 
     test = finding.get("test") or {}
+    beyond = test.get("linear_part") or {}
     routes = []
-    for r in (test, test.get("prediction") or {}):
+    for name, r in (("simulation", test), ("prediction", test.get("prediction") or {})):
+        # a route on which the extension's linear part decides gains nothing from more data
+        if float(beyond.get(name, 0.0)) > float(r.get("p_value", 1.0)):
+            continue
         values = [r.get(k) for k in ("std_error", "log_ratio", "n_batches", "tau")]
         if not all(isinstance(v, int | float) and math.isfinite(v) for v in values):
             continue

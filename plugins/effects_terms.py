@@ -481,7 +481,7 @@ def _output_lags(model: Model) -> list[int]:
     return list(range(1, na + 1)) if na else [1, 2]
 
 
-def _between(params: dict[str, Any]) -> bool:
+def _between_two_filters(params: dict[str, Any]) -> bool:
     """Whether a static_nonlinearity candidate is a curve between two filters."""
     return str(params.get("curve", "")).endswith("between two filters")
 
@@ -561,7 +561,7 @@ class StaticNonlinearity(_TermEffect):
         plant whose output noise is slow (AR 0.995: ``benchmarks/bench_diagnose_null.py``) that
         linear part alone predicted the validation data one step ahead 18 % better than the
         ARX baseline (p = 7e-20), the curve added nothing (p = 1), and the curve was named
-        (+0.82 points) on 4 of 200 such plants.  Where the filters earn the gain (or the
+        (+0.7 … +3.1 points) on 4 of 200 such plants.  Where the filters earn the gain (or the
         linear part cannot be fitted), the other candidates are chosen from (the refusal is in
         the chosen one's ``between_refused``); where the curve earns it, the linear part is the
         extension's
@@ -570,7 +570,7 @@ class StaticNonlinearity(_TermEffect):
         """
         cands, linear = self._all_builders(ctx)
         ext = _bodies.best_extension(ctx, cands, self.description)
-        if ext is None or linear is None or not _between(ext.params):
+        if ext is None or linear is None or not _between_two_filters(ext.params):
             return ext
         try:
             linear_model: Model | None = linear(ctx.train)
@@ -580,7 +580,7 @@ class StaticNonlinearity(_TermEffect):
         curve_gain = ctx.baseline_score + ext.train_gain - linear_score
         if linear_model is not None and curve_gain >= self.between_earns * ext.train_gain:
             return dataclasses.replace(ext, linear_part=linear_model)
-        rest = [c for c in cands if not _between(c[0])]
+        rest = [c for c in cands if not _between_two_filters(c[0])]
         other = _bodies.best_extension(ctx, rest, self.description)
         if other is None:
             return None

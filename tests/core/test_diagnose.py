@@ -66,12 +66,12 @@ def _separate_batches_p(ref, alt, margin, b):
 
 @pytest.mark.parametrize(("seed", "stronger"), [(2, True), (4, False)])
 def test_loss_test_counts_the_evidence_the_record_holds(seed, stronger):
-    """Overlapping batches give a record a few autocorrelation times long more evidence than
+    """Overlapping batches give a record about five batches of 4 τ long more evidence than
     five separate batches (here a consistent gain of e^4 in error energy; by analogy, the slow
     tanks' pump curve, +59 points, was p = 0.002 on five separate batches and not named) — but
     where the record holds fewer than five batches of 4 τ, they count only the batches it
     holds (separate batches shorter than 4 τ overstate the evidence: the null's rejection rate
-    rose to 5 %; docs/diagnose.md, "Statistics")."""
+    rose to 3.5–16.5 %; docs/diagnose.md, "Statistics")."""
     rng = np.random.default_rng(seed)
     n = 3000
     base = (_ar1(rng, 0.998, n) + 0.05 * rng.standard_normal(n)) ** 2

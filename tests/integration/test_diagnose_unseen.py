@@ -387,7 +387,7 @@ def test_a_linear_plant_with_slow_noise_names_no_curve_between_two_filters(seed,
     """A linear oscillator whose output noise is slow (AR 0.995; ``bench_diagnose_null.py
     --samples 2000,1000 --colour 0.995``, two of the seeds the rules were built on, not unseen
     like the servo's): the curve between two filters was named on 4 of 200 such plants,
-    +0.7 … +3.1 points, on the one-step prediction route (p 1e-3 … 1e-20) — a gain of the
+    +0.7 … +3.1 points, on the one-step prediction route (p 1e-3 … 4e-21) — a gain of the
     first filter's *linear* memory, which the curve does not add to.  Now the curve must earn
     half of its training gain over that linear part, or the other structures are chosen (158:
     it earns 39 %); and where it does, the validation test must show the extension beating

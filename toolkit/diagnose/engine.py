@@ -24,8 +24,8 @@ The procedure, for any registered identifier as the baseline and any registered 
    extension must remove more than the margin ``δ = min_relative_gain`` of the baseline's
    error energy in a typical stretch of the record, and gain at least ``min_gain`` points of
    fit (an effect size worth naming).  The p-values are Holm-adjusted over the effects tried,
-   weighted by the effects'
-   *training* gains (fixed before the validation data are looked at).  Noise alone then
+   weighted by the effects' *training* gains (fixed before the validation data are looked
+   at).  Noise alone then
    never names a cause: without structure the batch log-ratios scatter around
    ``log(1 - δ) < 0``.  An effect may also test its signature directly on the validation
    data (``direct_test``: a clipped output piles up at its level,
@@ -698,11 +698,13 @@ def _beyond_linear_part(
     (:attr:`Extension.linear_part`); the caller takes the larger of it and the route's
     p-value against the baseline, an intersection–union test (the extension must beat both;
     each test at the level keeps the level).  A linear part that cannot be simulated or
-    predicted gives that route 1 (no evidence beyond it)."""
+    predicted gives that route 1 (no evidence beyond it).  An effect's direct test is not
+    one of these routes: it reads a signature in the data (a clipped output's pile-up), not
+    a comparison of two models' losses."""
     ref: dict[str, FloatArray | None] = {"simulation": None, "prediction": None}
     try:
         ref["simulation"] = _loss(y, simulate_all(linear, valid))
-    except _NUMERICAL_ERRORS:
+    except _FIT_ERRORS:
         pass
     if "prediction" in routes:
         ref["prediction"] = prediction_losses(linear, valid)

@@ -570,8 +570,10 @@ def more_data_factor(finding: dict[str, Any], alpha: float, n_findings: int) -> 
     degrees of freedom of :func:`tendonkit.diagnose.stats.obm_dof`), and needs ``t·√K`` above
     the t quantile of the route's share of the level after the Holm
     adjustment (read from the finding's p-value and adjusted p-value; a capped adjustment
-    counts every finding).  The smallest such ``K`` on a grid up to :data:`MORE_DATA_CAP`,
-    over the routes; ``inf`` above it, None when no route points the right way.  An estimate
+    counts every finding).  A route on which the extension's linear part decides
+    (``test.linear_part``) is left out: more data against the baseline would not help.  The
+    smallest such ``K`` on a grid up to :data:`MORE_DATA_CAP`, over the routes; ``inf`` above
+    it, None when no route points the right way.  An estimate
     that assumes the gain and the errors' autocorrelation stay as they are.
     """
     # lazy: heavy (scipy), only when a note is written
@@ -580,7 +582,9 @@ def more_data_factor(finding: dict[str, Any], alpha: float, n_findings: int) -> 
     test = finding.get("test") or {}
     beyond = test.get("linear_part") or {}
     routes = []
+    counted = 0  # routes in the test's Bonferroni factor, whether or not they can gain
     for name, r in (("simulation", test), ("prediction", test.get("prediction") or {})):
+        counted += bool(r)
         # a route on which the extension's linear part decides gains nothing from more data
         if float(beyond.get(name, 0.0)) > float(r.get("p_value", 1.0)):
             continue
@@ -594,7 +598,7 @@ def more_data_factor(finding: dict[str, Any], alpha: float, n_findings: int) -> 
         routes.append((t, int(nb) * int(r.get("batch_length", 1)), tau))
     if not any(t > 0 for t, _, _ in routes):
         return None
-    k = len(routes) + (1 if test.get("direct") else 0)
+    k = counted + (1 if test.get("direct") else 0)
     p, p_adj = float(finding.get("p_value", 1.0)), float(finding.get("p_adjusted", 1.0))
     holm = p_adj / p if 0 < p and p_adj < 1.0 else float(max(n_findings, 1))
     level = alpha / (max(holm, 1.0) * max(k, 1))

@@ -1,7 +1,7 @@
 """Statistics of model comparison: is one model's validation loss really lower than another's?
 
 Used by :func:`tendonkit.diagnose.diagnose` (the reasoning and the calibration are in
-``docs/diagnose.md``): :func:`loss_test` compares per-sample losses over contiguous batches
+``docs/diagnose.md``): :func:`loss_test` compares per-sample losses over batches (every window)
 sized by the :func:`autocorrelation_time` of their difference, and :func:`holm` adjusts the
 p-values of several such tests (optionally weighted).   The direct test of a clipped
 signal is :mod:`tendonkit.diagnose.clip`.
@@ -167,7 +167,7 @@ def obm_dof(n: int, size: int, independent: float) -> float:
     ``independent`` (``k`` autocorrelation times) the record holds, where it holds fewer than
     the clamp's minimum: batches made shorter than that are not independent, and counting
     them overstated the evidence (the null's rejection rate at α = 1 % rose to 3.5–5.5 % on
-    records of 1–5 τ). At least one."""
+    records of 1–5 τ, 16.5 % on one shorter than 4 τ). At least one."""
     return max(1.0, 1.5 * (min(n / size, n / max(independent, 1.0)) - 1.0))
 
 

@@ -100,7 +100,8 @@ def main() -> None:
     if args.out:
         machine = {"load_before": load, "load_after": os.getloadavg()[0]}
         machine["wall_s"] = time.perf_counter() - t0
-        Path(args.out).write_text(json.dumps({"rows": rows, "machine": machine}, indent=1))
+        out = {"rows": rows, "machine": machine, "arguments": vars(args)}
+        Path(args.out).write_text(json.dumps(out, indent=1))
 
 
 if __name__ == "__main__":

@@ -57,6 +57,12 @@ def _corr(a: np.ndarray, b: np.ndarray) -> float:
 _velocity = _bodies.velocity
 
 
+#: ``build(train) -> Model``: a candidate structure fitted on some data.
+Builder = Callable[[Dataset], Model]
+#: An effect's candidates: ``(params, build)`` each.
+Candidates = list[tuple[dict[str, Any], Builder]]
+
+
 class _TermEffect:
     """Shared logic: candidates of term sets, selection on the check part, refit."""
 
@@ -67,7 +73,7 @@ class _TermEffect:
     def candidates(self, ctx: Context) -> list[tuple[dict[str, Any], list[Term]]]:
         raise NotImplementedError
 
-    def builders(self, ctx: Context) -> list[tuple[dict[str, Any], Callable[[Dataset], Model]]]:
+    def builders(self, ctx: Context) -> Candidates:
         """Every candidate as ``(params, build(train) -> Model)``."""
         return _labelled(ctx, self.candidates(ctx))
 
@@ -77,9 +83,7 @@ class _TermEffect:
         return _bodies.best_extension(ctx, self.builders(ctx), self.description)
 
 
-def _labelled(
-    ctx: Context, candidates: list[tuple[dict[str, Any], list[Term]]]
-) -> list[tuple[dict[str, Any], Callable[[Dataset], Model]]]:
+def _labelled(ctx: Context, candidates: list[tuple[dict[str, Any], list[Term]]]) -> Candidates:
     """Term candidates as ``(params with the terms' labels, build)``."""
     return [
         ({**p, "terms": [t.label for t in terms]}, ctx.with_terms(terms)) for p, terms in candidates
@@ -143,7 +147,7 @@ class CoulombFriction(_TermEffect):
                     params, model, score = p2, m2, s2
         return ctx.extension(params, model, score, self.description)
 
-    def builders(self, ctx: Context) -> list[tuple[dict[str, Any], Callable[[Dataset], Model]]]:
+    def builders(self, ctx: Context) -> Candidates:
         """Velocity-sign terms, and play on the inputs (quasi-static friction in force space).
 
         Static friction along a transmission (a tendon over capstans, a cable in a sheath, a
@@ -155,9 +159,7 @@ class CoulombFriction(_TermEffect):
         """
         return self._with_play(ctx, super().builders(ctx))
 
-    def _with_play(
-        self, ctx: Context, cands: list[tuple[dict[str, Any], Callable[[Dataset], Model]]]
-    ) -> list[tuple[dict[str, Any], Callable[[Dataset], Model]]]:
+    def _with_play(self, ctx: Context, cands: Candidates) -> Candidates:
         """``cands`` and the play-on-the-inputs candidates after them."""
         ustd = ctx.train.u.std(axis=0)
         for frac in self.play_fractions:
@@ -498,6 +500,14 @@ class StaticNonlinearity(_TermEffect):
         "outputs at every output lag)."
     )
 
+    #: Degrees of the curve between the two filters (each as powers at every input lag).
+    between_degrees = (3, 5, 7, 9)
+    #: Training samples per parameter below which a degree is not tried.
+    samples_per_parameter = 100
+    #: Share of a curve-between-two-filters candidate's training gain that its curve must earn
+    #: over the same structure without the curve (:meth:`extend`).
+    between_earns = 0.5
+
     def candidates(self, ctx: Context) -> list[tuple[dict[str, Any], list[Term]]]:
         base = ctx.baseline
         u, y = ctx.train.u, ctx.train.y
@@ -537,7 +547,7 @@ class StaticNonlinearity(_TermEffect):
             ),
         ]
 
-    def builders(self, ctx: Context) -> list[tuple[dict[str, Any], Callable[[Dataset], Model]]]:
+    def builders(self, ctx: Context) -> Candidates:
         """The term candidates, and a Wiener structure: a cubic curve after the model.
 
         The terms put the curve on past signals inside the recursion (a NARX form).  A curve
@@ -591,15 +601,7 @@ class StaticNonlinearity(_TermEffect):
         }
         return dataclasses.replace(other, params={**other.params, "between_refused": refused})
 
-    #: Share of a curve-between-two-filters candidate's training gain that its curve must earn
-    #: over the same structure without the curve (:meth:`extend`).
-    between_earns = 0.5
-
-    def _all_builders(
-        self, ctx: Context
-    ) -> tuple[
-        list[tuple[dict[str, Any], Callable[[Dataset], Model]]], Callable[[Dataset], Model] | None
-    ]:
+    def _all_builders(self, ctx: Context) -> tuple[Candidates, Builder | None]:
         """The candidates of :meth:`builders`, and the linear part of the curves between two
         filters (None where there are none)."""
         cands = super().builders(ctx)
@@ -616,16 +618,7 @@ class StaticNonlinearity(_TermEffect):
         between, linear = self._filtered_curves(ctx)
         return cands + between, linear
 
-    #: Degrees of the curve between the two filters (each as powers at every input lag).
-    between_degrees = (3, 5, 7, 9)
-    #: Training samples per parameter below which a degree is not tried.
-    samples_per_parameter = 100
-
-    def _filtered_curves(
-        self, ctx: Context
-    ) -> tuple[
-        list[tuple[dict[str, Any], Callable[[Dataset], Model]]], Callable[[Dataset], Model] | None
-    ]:
+    def _filtered_curves(self, ctx: Context) -> tuple[Candidates, Builder | None]:
         """Wiener–Hammerstein: a curve *between* two filters, the first one from the data;
         and the builder of the same structure without the curve (None with no candidate).
 
@@ -651,7 +644,7 @@ class StaticNonlinearity(_TermEffect):
         n = sum(e.n_samples for e in ctx.train.experiments)
         n_linear = free_parameters(base, blocks=False)
         linear = refit_with_input_blocks(ctx.refit, blocks)
-        out: list[tuple[dict[str, Any], Callable[[Dataset], Model]]] = []
+        out: Candidates = []
         for degree in self.between_degrees:
             terms = [
                 Term((Factor(name, power=p, lag=lag, scale=1.0 / sd, offset=mu),))

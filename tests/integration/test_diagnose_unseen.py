@@ -22,6 +22,8 @@ the cases that miss are listed in ``MISSES`` with what was named instead, as exp
 
 from __future__ import annotations
 
+from types import ModuleType
+
 import numpy as np
 import pytest
 from scipy.signal import butter, lfilter
@@ -280,7 +282,7 @@ def test_a_coupling_between_two_bodies_is_found(effect, seed, tmp_path):
             assert "Named cause: backlash between theta_m-theta_l" in html
 
 
-def _bench(name: str):  # type: ignore[no-untyped-def]
+def _bench(name: str) -> ModuleType:
     """``benchmarks/<name>.py``, loaded from its file."""
     import importlib.util
     from pathlib import Path

@@ -49,7 +49,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import pickle
-from collections.abc import Iterable, Sequence
+from collections.abc import Collection, Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -690,7 +690,7 @@ def _beyond_linear_part(
     y: FloatArray,
     loss: FloatArray,
     pred: FloatArray | None,
-    routes: dict[str, float],
+    routes: Collection[str],
     valid: Dataset,
     delta: float,
 ) -> dict[str, float]:

@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 
 from ..schema import Model
 from .residuals import ResidualAnalysis
-from .stats import obm_dof, routes_p_value
+from .stats import BATCH_TAUS, obm_dof, routes_p_value
 
 FloatArray = NDArray[np.float64]
 
@@ -605,8 +605,8 @@ def more_data_factor(finding: dict[str, Any], alpha: float, n_findings: int) -> 
     for factor in np.geomspace(1.0, MORE_DATA_CAP, 61):
         for t, n, tau in routes:
             longer = int(factor * n)
-            batches = int(np.clip(longer // max(math.ceil(4.0 * tau), 1), 5, 50))
-            dof = obm_dof(longer, longer // batches, 4.0 * tau)
+            batches = int(np.clip(longer // max(math.ceil(BATCH_TAUS * tau), 1), 5, 50))
+            dof = obm_dof(longer, longer // batches, BATCH_TAUS * tau)
             if t * math.sqrt(factor) >= stats.t.ppf(1.0 - level, dof):
                 return float(factor)
     return math.inf

@@ -20,6 +20,10 @@ from numpy.typing import NDArray
 FloatArray = NDArray[np.float64]
 
 
+#: Batch length of :func:`loss_test`, in integrated autocorrelation times.
+BATCH_TAUS = 4.0
+
+
 @dataclass(frozen=True)
 class LossTest:
     """One-sided test that an alternative model's validation loss is lower than a reference's.
@@ -81,7 +85,7 @@ def loss_test(
     alternative: FloatArray,
     *,
     margin: float = 0.0,
-    k: float = 4.0,
+    k: float = BATCH_TAUS,
     min_batches: int = 5,
     max_batches: int = 50,
 ) -> LossTest:
@@ -160,15 +164,15 @@ def loss_test(
     return LossTest(p, mean, se, b, size, tau)
 
 
-def obm_dof(n: int, size: int, independent: float) -> float:
+def obm_dof(n: int, size: int, batch_span: float) -> float:
     """Degrees of freedom of the overlapping-batch-means variance: ``1.5 (b - 1)``
     (Meketon & Schmeiser 1984; Welch 1987), half as many again as the same record cut into
     ``b`` non-overlapping batches — with ``b`` the number of batches of length
-    ``independent`` (``k`` autocorrelation times) the record holds, where it holds fewer than
+    ``batch_span`` (``k`` autocorrelation times) the record holds, where it holds fewer than
     the clamp's minimum: batches made shorter than that are not independent, and counting
     them overstated the evidence (the null's rejection rate at α = 1 % rose to 3.5–5.5 % on
     records of 1–5 τ, 16.5 % on one shorter than 4 τ). At least one."""
-    return max(1.0, 1.5 * (min(n / size, n / max(independent, 1.0)) - 1.0))
+    return max(1.0, 1.5 * (min(n / size, n / max(batch_span, 1.0)) - 1.0))
 
 
 def _window_means(x: FloatArray, size: int) -> FloatArray:

@@ -483,11 +483,6 @@ def _output_lags(model: Model) -> list[int]:
     return list(range(1, na + 1)) if na else [1, 2]
 
 
-def _between_two_filters(params: dict[str, Any]) -> bool:
-    """Whether a static_nonlinearity candidate is a curve between two filters."""
-    return str(params.get("curve", "")).endswith("between two filters")
-
-
 class StaticNonlinearity(_TermEffect):
     """A memoryless nonlinearity on a signal path: Hammerstein, Wiener, Wiener–Hammerstein."""
 
@@ -559,7 +554,8 @@ class StaticNonlinearity(_TermEffect):
         place where the baseline chose its own (:func:`_wiener_order`); a named one is refined
         by simulation error, all of it, like every extension.
         """
-        return self._all_builders(ctx)[0]
+        cands, between, _ = self._all_builders(ctx)
+        return cands + between
 
     def extend(self, ctx: Context) -> Extension | None:
         """The best candidate — where it is a curve between two filters, only if the curve
@@ -578,10 +574,15 @@ class StaticNonlinearity(_TermEffect):
         :attr:`~tendonkit.diagnose.Extension.linear_part`, which the validation test must
         beat too.
         """
-        cands, linear = self._all_builders(ctx)
-        ext = _bodies.best_extension(ctx, cands, self.description)
-        if ext is None or linear is None or not _between_two_filters(ext.params):
-            return ext
+        cands, between, linear = self._all_builders(ctx)
+        other = _bodies.best_extension(ctx, cands, self.description)
+        ext = _bodies.best_extension(ctx, between, self.description) if between else None
+        if (
+            ext is None
+            or linear is None
+            or (other is not None and ext.train_gain <= other.train_gain)
+        ):
+            return other
         try:
             linear_model: Model | None = linear(ctx.train)
             linear_score = ctx.score(linear_model)  # type: ignore[arg-type]
@@ -590,8 +591,6 @@ class StaticNonlinearity(_TermEffect):
         curve_gain = ctx.baseline_score + ext.train_gain - linear_score
         if linear_model is not None and curve_gain >= self.between_earns * ext.train_gain:
             return dataclasses.replace(ext, linear_part=linear_model)
-        rest = [c for c in cands if not _between_two_filters(c[0])]
-        other = _bodies.best_extension(ctx, rest, self.description)
         if other is None:
             return None
         refused = {
@@ -601,12 +600,12 @@ class StaticNonlinearity(_TermEffect):
         }
         return dataclasses.replace(other, params={**other.params, "between_refused": refused})
 
-    def _all_builders(self, ctx: Context) -> tuple[Candidates, Builder | None]:
-        """The candidates of :meth:`builders`, and the linear part of the curves between two
-        filters (None where there are none)."""
+    def _all_builders(self, ctx: Context) -> tuple[Candidates, Candidates, Builder | None]:
+        """The candidates of :meth:`builders`: the others, the curves between two filters,
+        and the builder of those curves' linear part (None where there are none)."""
         cands = super().builders(ctx)
         if ctx.baseline.output_blocks:
-            return cands, None
+            return cands, [], None
         params: dict[str, Any] = {"structure": "Wiener", "curve": "cubic output polynomial"}
         refit = ctx.refit
         order = _wiener_order(ctx)
@@ -616,7 +615,7 @@ class StaticNonlinearity(_TermEffect):
             refit = inner_refit
         cands.append((params, lambda d: fit_wiener(refit, d)))
         between, linear = self._filtered_curves(ctx)
-        return cands + between, linear
+        return cands, between, linear
 
     def _filtered_curves(self, ctx: Context) -> tuple[Candidates, Builder | None]:
         """Wiener–Hammerstein: a curve *between* two filters, the first one from the data;

@@ -630,7 +630,7 @@ def try_effect(
         loss_routes["prediction"] = ptest.p_value
         test_info["prediction"] = {**ptest.to_dict(), "horizon": PREDICTION_HORIZON}
     if ext.linear_part is not None:
-        beyond = _beyond_linear_part(ext.linear_part, ref.y, loss, pred, loss_routes, valid, delta)
+        beyond = _beyond_linear_part(ext.linear_part, loss, pred, loss_routes, valid, delta)
         test_info["linear_part"] = beyond
         loss_routes = {r: max(p, beyond[r]) for r, p in loss_routes.items()}
     # The screen can only lower a p-value below alpha where a route is below it already.
@@ -687,7 +687,6 @@ def try_effect(
 
 def _beyond_linear_part(
     linear: Model,
-    y: FloatArray,
     loss: FloatArray,
     pred: FloatArray | None,
     routes: Collection[str],
@@ -701,13 +700,7 @@ def _beyond_linear_part(
     predicted gives that route 1 (no evidence beyond it).  An effect's direct test is not
     one of these routes: it reads a signature in the data (a clipped output's pile-up), not
     a comparison of two models' losses."""
-    ref: dict[str, FloatArray | None] = {"simulation": None, "prediction": None}
-    try:
-        ref["simulation"] = _loss(y, simulate_all(linear, valid))
-    except _FIT_ERRORS:
-        pass
-    if "prediction" in routes:
-        ref["prediction"] = prediction_losses(linear, valid)
+    ref = _route_losses(linear, valid)
     ext = {"simulation": loss, "prediction": pred}
     beyond = {}
     for route in routes:
@@ -967,14 +960,15 @@ def held_out_test(effect: Effect, ctx: Context, settings: Settings) -> dict[str,
     return out
 
 
-def _training_losses(model: Model, train: Dataset) -> dict[str, FloatArray | None]:
-    """Per-sample losses of ``model`` on the training data, by route (None: not available)."""
+def _route_losses(model: Model, data: Dataset) -> dict[str, FloatArray | None]:
+    """Per-sample losses of ``model`` on ``data``, by route of the test (None: not
+    available): the free run and the one-step prediction."""
     try:
-        y, sim = _sim_pair(model, train)
+        y, sim = _sim_pair(model, data)
         simulation: FloatArray | None = _loss(y, sim)
-    except _NUMERICAL_ERRORS:
+    except _FIT_ERRORS:
         simulation = None
-    return {"simulation": simulation, "prediction": prediction_losses(model, train)}
+    return {"simulation": simulation, "prediction": prediction_losses(model, data)}
 
 
 def screen_routes(
@@ -998,9 +992,9 @@ def screen_routes(
         return None
     cache = ctx._cache
     if "train_losses" not in cache:
-        cache["train_losses"] = _training_losses(ctx.baseline, ctx.train)
+        cache["train_losses"] = _route_losses(ctx.baseline, ctx.train)
     base = cache["train_losses"]
-    ext = _training_losses(model, ctx.train)
+    ext = _route_losses(model, ctx.train)
     p: dict[str, float] = {}
     for r in routes:
         b, e = base.get(r), ext.get(r)

@@ -40,13 +40,17 @@ Algorithm:
    whole record.  The candidates' table is stored in the provenance
    (``details["candidates"]``) and drawn by
    :func:`tendonkit.figures.plot_structure_selection` (``compare --plot``).
-5. **Uncertainty.**  The Gauss–Newton covariance of the parameters at the optimum, mapped
+5. **Prediction focus** (``focus="prediction"``): the innovation form, the Kalman gain ``K``
+   with every other parameter, refitted by the ``horizon``-step prediction error from the
+   simulation-error model (:mod:`tendonkit.plugins._innovation`).
+6. **Uncertainty.**  The Gauss–Newton covariance of the parameters at the optimum, mapped
    to the entries of the stored matrices, is kept in ``details["covariance"]``
    (:mod:`tendonkit.uncertainty` turns it into a confidence band on simulated outputs).
 
 The result is a :class:`~tendonkit.schema.StateSpace` in real block-diagonal (modal) form
-with its operating point ``u0``/``y0``; no Kalman gain (an output-error model has no noise
-model: prediction uses the gain fitted by :func:`tendonkit.predict.predict`).
+with its operating point ``u0``/``y0``; with the default focus no Kalman gain (an output-error
+model has no noise model: prediction uses the gain fitted by :func:`tendonkit.predict.predict`),
+with ``focus="prediction"`` the fitted ``K``.
 
 References
 ----------
@@ -77,7 +81,7 @@ from tendonkit.identification import (
     training_fit,
     without_training_fit,
 )
-from tendonkit.plugins import _modal
+from tendonkit.plugins import _innovation, _modal
 from tendonkit.plugins._arx_structure import estimate_delays
 from tendonkit.plugins.arx import ARX as ArxOptions
 from tendonkit.plugins.n4sid import N4SID
@@ -98,6 +102,8 @@ STOP_AFTER = 2
 #: Tolerance (and at most 50 evaluations) of the candidates' refinements: ranking them needs
 #: their errors to a few per cent, not the final model's convergence.
 SELECTION_TOL = 1e-5
+#: The criteria the refinement can minimise (``PEM.focus``).
+FOCUSES = ("simulation", "prediction")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -131,6 +137,16 @@ class PEM:
         scored (the benchmarks' protocol; short windows penalise states the data cannot fix).
     max_iterations : int
         Cap on the refinement's function evaluations (each also computes the Jacobian).
+    focus : str
+        ``"simulation"`` (default): the free-run simulation error, no noise model (an
+        output-error model, the criterion the benchmarks judge).  ``"prediction"``: then the
+        innovation form — ``A, B, C, D``, the Kalman gain ``K``, the initial states and the
+        operating point — refitted by the ``horizon``-step prediction error (MATLAB
+        ``ssest``'s default focus; the maximum-likelihood fit under process noise, and the
+        model a state estimator or an MPC predicts with).  The structure is selected as for
+        simulation.
+    horizon : int
+        Prediction horizon in samples of ``focus="prediction"`` (1: the one-step error).
 
     Examples
     --------
@@ -157,6 +173,8 @@ class PEM:
     folds: int = 4
     init_window: int = 10
     max_iterations: int = 100
+    focus: str = "simulation"
+    horizon: int = 1
 
     def __post_init__(self) -> None:
         p: list[str] = []
@@ -182,6 +200,15 @@ class PEM:
             p.append(f"init_window must be an integer >= 1, found {self.init_window!r}.")
         if not is_int(self.max_iterations) or self.max_iterations < 1:
             p.append(f"max_iterations must be an integer >= 1, found {self.max_iterations!r}.")
+        if self.focus not in FOCUSES:
+            p.append(f"focus must be one of {', '.join(FOCUSES)}, found {self.focus!r}.")
+        if not is_int(self.horizon) or self.horizon < 1:
+            p.append(f"horizon must be an integer >= 1, found {self.horizon!r}.")
+        elif self.horizon != 1 and self.focus != "prediction":
+            p.append(
+                f"horizon {self.horizon} applies to focus='prediction' only (the simulation "
+                "error has no horizon)."
+            )
         if p:
             raise OptionError("Invalid options for pem:", p)
 
@@ -256,24 +283,43 @@ class PEM:
                 ) from None
         layout, theta = start
         theta, cost0, cost, nfev = _modal.refine(layout, theta, exps, sy, self.max_iterations)
-        A, B, C, D, x0s, u0, y0 = _modal.to_state_space(layout, theta)
         how = "given" if len(candidates) == 1 else "selected on held-out data"
         notes = [
             f"order {n}{' with ' + str(ny) + ' integrator(s)' if integ else ''} ({how})",
             f"simulation-error refinement: normalised RMS {cost0:.4g} -> {cost:.4g} "
             f"({nfev} evaluations)",
         ]
+        K, jac = None, None
+        if self.focus == "prediction":
+            K0 = _innovation.initial_gain(layout, theta, exps)
+            theta, K, p0, p1, pfev, jac = _innovation.refine(
+                layout, theta, K0, exps, sy, self.horizon, self.max_iterations
+            )
+            notes.append(
+                f"{self.horizon}-step prediction-error refinement with the Kalman gain K: "
+                f"normalised RMS {p0:.4g} -> {p1:.4g} ({pfev} evaluations)"
+            )
+        A, B, C, D, x0s, u0, y0 = _modal.to_state_space(layout, theta)
         rep = StateSpace(
             A=A,
             B=B,
             C=C,
             D=D,
+            K=K,
             x0=x0s[0],
             u0=u0 if (self.offset and integ) else None,
             y0=y0 if (self.offset and not integ) else None,
         )
         details: dict[str, Any] = {"candidates": table} if table else {}
-        cov = _covariance(layout, theta, exps, sy, rep)
+        if K is None:
+            cov = _covariance(layout, theta, exps, sy, rep)
+        elif jac is not None:
+            r = _innovation.Problem(layout, exps, sy, self.horizon).residuals(
+                np.concatenate([theta, K.ravel()])
+            )
+            cov = _innovation.covariance(layout, theta, K, jac, r, rep)
+        else:
+            cov = None
         if cov is not None:
             details["covariance"] = cov
         return build_model(self, dataset, rep, notes="; ".join(notes), details=details or None)

@@ -3,7 +3,9 @@
 An identifier that refines its parameters by least squares can store their covariance in the
 model's provenance, ``details["covariance"]`` = ``{"parameters": [names], "matrix": [[...]]}``,
 the names addressing entries of the state-space representation (``"A[0,1]"``, ``"B[2,0]"``,
-``"C[0,0]"``, ``"D[0,0]"``, ``"u0[0]"``, ``"y0[0]"``).  The covariance is the Gauss–Newton one,
+``"C[0,0]"``, ``"D[0,0]"``, ``"K[0,0]"``, ``"u0[0]"``, ``"y0[0]"``; the Kalman gain ``K`` of a
+model fitted by its prediction error does not move a simulation, so its entries add nothing
+to the band).  The covariance is the Gauss–Newton one,
 ``λ (JᵀJ)⁺`` with ``J`` the Jacobian of the normalised simulation errors at the optimum and
 ``λ`` their variance (Ljung, *System Identification*, 2nd ed., §9.3): it describes the scatter
 of the estimate under the noise seen in the residuals, not the error of a wrong structure.
@@ -28,7 +30,7 @@ from .simulate import estimate_x0, simulate
 
 FloatArray = NDArray[np.float64]
 
-_NAME = re.compile(r"^(A|B|C|D|u0|y0)\[(\d+)(?:,(\d+))?\]$")
+_NAME = re.compile(r"^(A|B|C|D|K|u0|y0)\[(\d+)(?:,(\d+))?\]$")
 
 
 def covariance(model: Model) -> tuple[list[str], FloatArray] | None:
@@ -47,7 +49,7 @@ def with_parameters(rep: StateSpace, names: list[str], values: FloatArray) -> St
     """``rep`` with the named entries set to ``values``."""
     mats: dict[str, Any] = {
         k: None if getattr(rep, k) is None else np.array(getattr(rep, k), dtype=float)
-        for k in ("A", "B", "C", "D", "u0", "y0")
+        for k in ("A", "B", "C", "D", "K", "u0", "y0")
     }
     for name, v in zip(names, values, strict=True):
         m = _NAME.match(name)
@@ -103,6 +105,9 @@ def simulate_band(
             f"Model {model.name!r} has no parameter covariance (identify it with pem)."
         )
     names, cov = stored
+    # the Kalman gain does not move a simulation: its sensitivities are zero
+    moves = [i for i, n in enumerate(names) if not n.startswith("K[")]
+    names, cov = [names[i] for i in moves], cov[np.ix_(moves, moves)]
     u = np.asarray(u, dtype=float)
     yy = None if y is None else np.asarray(y, dtype=float)
     if initial == "estimate":

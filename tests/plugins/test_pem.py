@@ -16,6 +16,7 @@ from tendonkit.schema import Block, Model, Signal, StateSpace
 from tendonkit.simulate import simulate
 from tendonkit.stepper import Stepper
 from tendonkit.testsystems import random_state_space, simulate_truth
+from tendonkit.uncertainty import simulate_band
 
 
 def _data(u: np.ndarray, y: np.ndarray, dt: float = 0.01, splits: int = 1) -> Dataset:
@@ -134,6 +135,57 @@ def test_bad_options_listed_together() -> None:
     text = str(info.value)
     for key in ("order", "integrator", "folds", "init_window", "max_iterations"):
         assert key in text
+    with pytest.raises(OptionError) as info:
+        PEM(focus="noise", horizon=0)
+    assert "focus" in str(info.value) and "horizon" in str(info.value)
+    with pytest.raises(OptionError, match="focus='prediction' only"):
+        PEM(horizon=5)
+
+
+def _innovation_plant(seed: int, n: int = 4000) -> tuple[Dataset, np.ndarray, np.ndarray]:
+    """``x+ = A x + B u + K e``, ``y = C x + e``: a disturbance that enters the dynamics
+    (process noise), so the output error is coloured and the innovation form is the truth."""
+    A = np.array([[0.9, 0.2], [-0.2, 0.9]])
+    B, C, K = np.array([[0.0], [1.0]]), np.array([[1.0, 0.0]]), np.array([[0.5], [0.3]])
+    rng = np.random.default_rng(seed)
+    u, e = rng.standard_normal((n, 1)), 0.3 * rng.standard_normal((n, 1))
+    x, y = np.zeros(2), np.empty((n, 1))
+    for t in range(n):
+        y[t] = C @ x + e[t]
+        x = A @ x + B @ u[t] + K @ e[t]
+    return _data(u, y), np.linalg.eigvals(A - K @ C), e
+
+
+@pytest.mark.parametrize("horizon", [1, 3])
+def test_prediction_focus_fits_the_kalman_gain(horizon: int) -> None:
+    """focus="prediction": K is fitted with every other parameter by the k-step prediction
+    error; the predictor's poles (eigenvalues of A - KC) are the truth's, and on new data it
+    predicts better than the output-error model with the gain fitted afterwards."""
+    train, poles, _ = _innovation_plant(1)
+    valid, _, e = _innovation_plant(2)
+    opts = {"order": 2, "integrator": False, "feedthrough": False, "delay": False}
+    oe = tk.identify(train, "pem", **opts)
+    model = tk.identify(train, "pem", focus="prediction", horizon=horizon, **opts)
+    rep = model.representation
+    assert isinstance(rep, StateSpace) and rep.K is not None and oe.representation.K is None
+    found = np.sort_complex(np.linalg.eigvals(rep.A - rep.K @ rep.C))
+    assert np.max(np.abs(found - np.sort_complex(poles))) < 0.03
+    assert f"{horizon}-step prediction-error refinement" in model.provenance.notes
+    v = valid.experiments[0]
+    errors = {}
+    for name, m in (("oe", oe), ("pem", model)):
+        pred = tk.predict(m, v.u, v.y, horizon)
+        errors[name] = float(np.sqrt(np.mean((v.y[50:] - pred[50:]) ** 2)))
+    # the innovations' RMS is the best any predictor can do one step ahead
+    floor = float(np.sqrt(np.mean(e[50:] ** 2)))
+    assert errors["pem"] < errors["oe"]
+    if horizon == 1:
+        assert errors["pem"] < 1.02 * floor < errors["oe"]
+    cov = model.provenance.details["covariance"]
+    assert any(p.startswith("K[") for p in cov["parameters"])
+    # the band of a simulation reads the covariance and leaves K out (it moves no simulation)
+    nominal, half = simulate_band(model, v.u, v.y)
+    assert nominal.shape == half.shape == v.y.shape and np.all(half[50:] > 0)
 
 
 def test_offsets_in_folded_and_terms_paths_agree() -> None:

@@ -1,0 +1,218 @@
+"""The prediction form of :mod:`tendonkit.plugins.pem`: ``K`` and every other parameter refitted
+by the k-step prediction error (MATLAB ``ssest(..., 'Focus', 'prediction')``).
+
+The model is the innovation form around the operating point (``Δu = u - u0``, ``Δy = y - y0``)::
+
+    x[t+1] = A x[t] + B Δu[t] + K e[t],   Δy[t] = C x[t] + D Δu[t] + e[t]
+
+whose one-step predictor is ``x̂[t+1] = (A - K C) x̂[t] + (B - K D) Δu[t] + K Δy[t]``.  The
+``k``-step prediction ``ŷ(t | t-k)`` propagates ``x̂(t-k+1 | t-k)`` ``k - 1`` steps with the
+known inputs and no measurement.  The deterministic part keeps the modal coordinates of
+:mod:`tendonkit.plugins._modal` (poles bounded, integrators fixed at 1); ``K`` is free in the
+coordinates of the real block-diagonal ``A`` that :func:`_modal.to_state_space` writes.  A
+predictor that is not stable (``ρ(A - K C) ≥ 1``) is outside the domain: its residuals are a
+large constant, so the trust region steps back.
+
+Why a separate refinement: the simulation error (output error) is the criterion a model that
+will be simulated is judged by, and it is consistent for the deterministic part whatever the
+noise; the prediction error is the maximum-likelihood criterion when the disturbance is
+process noise (Ljung 1999, §7.4), and the criterion of a model used for state estimation or
+MPC.  Its Jacobian is by forward differences (one predictor run per parameter; the predictor
+is a blocked state-space response, :func:`tendonkit.simulate.ss_response`).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from tendonkit.plugins import _modal
+from tendonkit.predict import fitted_kalman_gain
+from tendonkit.schema import StateSpace
+from tendonkit.simulate import ss_response
+
+FloatArray = NDArray[np.float64]
+
+#: Normalised residual of every sample where the predictor is unstable (outside the domain).
+OUTSIDE = 1e3
+#: Largest spectral radius of the predictor ``A - K C`` accepted.
+PREDICTOR_RADIUS = 1.0 - 1e-9
+
+
+def predictions(
+    A: FloatArray,
+    B: FloatArray,
+    C: FloatArray,
+    D: FloatArray,
+    K: FloatArray,
+    du: FloatArray,
+    dy: FloatArray,
+    x0: FloatArray,
+    horizon: int,
+) -> FloatArray:
+    """``ŷ(t | t-horizon) - y0`` for every ``t`` (deviations), from the initial state ``x0``.
+
+    Before ``t = horizon - 1`` the prediction is the free run from ``x0`` as far as the data
+    go, so every sample has a prediction.
+    """
+    n, nu = B.shape
+    AK, BK = A - K @ C, B - K @ D
+    # the predictor's states: a state space driven by [Δu, Δy] whose outputs are its states
+    X = ss_response(AK, np.hstack([BK, K]), np.eye(n), np.zeros((n, nu + K.shape[1])),
+                    np.hstack([du, dy]), x0)  # fmt: skip
+    # X[t] = x̂(t | t-1); step j: x̂(t | t-j-1) = A x̂(t-1 | t-j-1) + B Δu[t-1]
+    for _ in range(horizon - 1):
+        shifted = np.empty_like(X)
+        shifted[0] = x0
+        shifted[1:] = X[:-1] @ A.T + du[:-1] @ B.T
+        X = shifted
+    return np.asarray(X @ C.T + du @ D.T)
+
+
+def initial_gain(
+    layout: _modal.Layout, theta: FloatArray, exps: list[tuple[FloatArray, FloatArray]]
+) -> FloatArray:
+    """The start of ``K``: the Kalman gain whose noise ratio predicts the first experiment best
+    (:func:`tendonkit.predict.fitted_kalman_gain`)."""
+    A, B, C, D, _, u0, y0 = _modal.to_state_space(layout, theta)
+    u, y = exps[0]
+    return fitted_kalman_gain(StateSpace(A=A, B=B, C=C, D=D), u - u0, y - y0)
+
+
+class Problem:
+    """Residuals of the normalised k-step prediction errors over θ = [modal θ, vec K]."""
+
+    def __init__(
+        self,
+        layout: _modal.Layout,
+        exps: list[tuple[FloatArray, FloatArray]],
+        sy: FloatArray,
+        horizon: int,
+    ) -> None:
+        self.layout, self.exps, self.sy, self.horizon = layout, exps, sy, horizon
+        self.n_res = sum(y.size for _, y in exps)
+
+    def split(self, z: FloatArray) -> tuple[FloatArray, FloatArray]:
+        n, ny = self.layout.n_states, self.layout.ny
+        return z[: self.layout.size], z[self.layout.size :].reshape(n, ny)
+
+    def residuals(self, z: FloatArray) -> FloatArray:
+        theta, K = self.split(z)
+        A, B, C, D, x0s, u0, y0 = _modal.to_state_space(self.layout, theta)
+        AK = A - K @ C
+        if not np.all(np.isfinite(AK)) or max(abs(np.linalg.eigvals(AK)), default=0.0) > (
+            PREDICTOR_RADIUS
+        ):
+            return np.full(self.n_res, OUTSIDE)
+        parts = []
+        with np.errstate(all="ignore"):
+            for e, (u, y) in enumerate(self.exps):
+                dy = y - y0
+                pred = predictions(A, B, C, D, K, u - u0, dy, x0s[e], self.horizon)
+                parts.append(((dy - pred) / self.sy).ravel())
+        r = np.concatenate(parts)
+        return r if np.all(np.isfinite(r)) else np.full(self.n_res, OUTSIDE)
+
+
+def refine(
+    layout: _modal.Layout,
+    theta: FloatArray,
+    K: FloatArray,
+    exps: list[tuple[FloatArray, FloatArray]],
+    sy: FloatArray,
+    horizon: int,
+    max_nfev: int,
+    tol: float = 1e-10,
+) -> tuple[FloatArray, FloatArray, float, float, int, FloatArray | None]:
+    """Trust-region least squares of every parameter and ``K`` on the normalised
+    ``horizon``-step prediction errors of ``exps``.
+
+    Returns ``(theta, K, rms before, rms after, evaluations, Jacobian at the optimum)``; the
+    start (and no Jacobian) when the refinement does not lower the error.
+    """
+    # lazy: heavy (scipy.optimize)
+    from scipy.optimize import least_squares
+
+    problem = Problem(layout, exps, sy, horizon)
+    lo, hi = _modal.bounds(layout, _modal.STABLE_RADIUS)
+    theta = np.clip(theta, lo, hi)
+    z0 = np.concatenate([theta, K.ravel()])
+    free = np.full(K.size, np.inf)
+    r0 = problem.residuals(z0)
+    if np.all(r0 == OUTSIDE):
+        K = np.zeros_like(K)  # the one-step predictor of an output-error model: A itself
+        z0 = np.concatenate([theta, K.ravel()])
+        r0 = problem.residuals(z0)
+    with np.errstate(all="ignore"):
+        sol = least_squares(
+            problem.residuals,
+            z0,
+            jac="2-point",
+            bounds=(np.concatenate([lo, -free]), np.concatenate([hi, free])),
+            method="trf",
+            x_scale="jac",
+            max_nfev=max_nfev,
+            ftol=tol,
+            xtol=tol,
+            gtol=tol,
+        )
+    n_res = problem.n_res
+    before = float(np.sqrt(r0 @ r0 / n_res))
+    after = float(np.sqrt(sol.fun @ sol.fun / n_res))
+    if not np.isfinite(after) or after >= before:
+        return theta, K, before, before, int(sol.nfev), None
+    th, k = problem.split(np.asarray(sol.x))
+    return th, k, before, after, int(sol.nfev), np.asarray(sol.jac)
+
+
+def covariance(
+    layout: _modal.Layout,
+    theta: FloatArray,
+    K: FloatArray,
+    jac: FloatArray,
+    residuals: FloatArray,
+    rep: StateSpace,
+) -> dict[str, Any] | None:
+    """Gauss–Newton covariance ``λ (JᵀJ)⁺`` of the prediction-error fit, mapped to the
+    entries of ``rep`` that vary (``K`` among them); the initial states are left out."""
+    s = np.linalg.svd(jac, compute_uv=False)
+    rank = int(np.sum(s > 1e-10 * s[0])) if s.size and s[0] > 0 else 0
+    if rank == 0 or residuals.size <= rank:
+        return None
+    lam = float(residuals @ residuals) / (residuals.size - rank)
+    cov_z = lam * np.linalg.pinv(jac.T @ jac, rcond=1e-10, hermitian=True)
+    s0 = {i for part in layout.slices["s0"] for i in range(part.start, part.stop)}
+    z = np.concatenate([theta, K.ravel()])
+    free = [i for i in range(z.size) if i not in s0]
+    keys: list[tuple[str, FloatArray]] = [("A", rep.A), ("B", rep.B), ("C", rep.C), ("D", rep.D)]
+    keys.append(("K", K))
+    if rep.u0 is not None:
+        keys.append(("u0", rep.u0))
+    if rep.y0 is not None:
+        keys.append(("y0", rep.y0))
+    names = [
+        f"{k}[{','.join(str(i) for i in idx)}]" for k, arr in keys for idx in np.ndindex(arr.shape)
+    ]
+
+    def flat(v: FloatArray) -> FloatArray:
+        A, B, C, D, _, u0, y0 = _modal.to_state_space(layout, v[: layout.size])
+        parts = {"A": A, "B": B, "C": C, "D": D, "K": v[layout.size :], "u0": u0, "y0": y0}
+        return np.concatenate([np.ravel(parts[k]) for k, _ in keys])
+
+    T = np.empty((len(names), len(free)))
+    for c, i in enumerate(free):
+        h = 1e-7 * max(abs(z[i]), 1e-3)
+        up, down = z.copy(), z.copy()
+        up[i] += h
+        down[i] -= h
+        T[:, c] = (flat(up) - flat(down)) / (2 * h)
+    keep = np.flatnonzero(np.any(np.abs(T) > 1e-12, axis=1))
+    Tk = T[keep]
+    cov = Tk @ cov_z[np.ix_(free, free)] @ Tk.T
+    return {
+        "parameters": [names[i] for i in keep],
+        "matrix": cov.tolist(),
+        "noise_variance": lam,
+    }

@@ -13,6 +13,12 @@ coordinates of the real block-diagonal ``A`` that :func:`_modal.to_state_space` 
 predictor that is not stable (``ρ(A - K C) ≥ 1``) is outside the domain: its residuals are a
 large constant, so the trust region steps back.
 
+The initial state of every experiment is the predictor's, ``x̂(0 | -1)``, fitted with the rest
+(the stored ``x0`` is the first experiment's).  :func:`tendonkit.predict.predict` starts the
+predictor from the free-run initial state it estimates and repeats the measurement for the
+first ``k - 1`` samples; both agree once ``(A - K C)^t`` has decayed — a few samples on the
+records the identifier needs.
+
 Why a separate refinement: the simulation error (output error) is the criterion a model that
 will be simulated is judged by, and it is consistent for the deterministic part whatever the
 noise; the prediction error is the maximum-likelihood criterion when the disturbance is
@@ -23,13 +29,15 @@ is a blocked state-space response, :func:`tendonkit.simulate.ss_response`).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from tendonkit.errors import DataError, SimulationError
 from tendonkit.plugins import _modal
-from tendonkit.predict import fitted_kalman_gain
+from tendonkit.predict import fitted_kalman_gain, kalman_gain
 from tendonkit.schema import StateSpace
 from tendonkit.simulate import ss_response
 
@@ -71,14 +79,22 @@ def predictions(
     return np.asarray(X @ C.T + du @ D.T)
 
 
-def initial_gain(
+def initial_gains(
     layout: _modal.Layout, theta: FloatArray, exps: list[tuple[FloatArray, FloatArray]]
-) -> FloatArray:
-    """The start of ``K``: the Kalman gain whose noise ratio predicts the first experiment best
-    (:func:`tendonkit.predict.fitted_kalman_gain`)."""
+) -> list[FloatArray]:
+    """Starts of ``K``, best first: the Kalman gain whose noise ratio predicts the first
+    experiment best (:func:`tendonkit.predict.fitted_kalman_gain`), the gain for unit process
+    and measurement noise (a stabilising one where ``(A, C)`` is detectable, integrators
+    included), and none (an output-error model's predictor: ``A`` itself, stable for a stable
+    model)."""
     A, B, C, D, _, u0, y0 = _modal.to_state_space(layout, theta)
     u, y = exps[0]
-    return fitted_kalman_gain(StateSpace(A=A, B=B, C=C, D=D), u - u0, y - y0)
+    starts = [fitted_kalman_gain(StateSpace(A=A, B=B, C=C, D=D), u - u0, y - y0)]
+    try:
+        starts.append(kalman_gain(A, C))
+    except SimulationError:
+        pass
+    return [*starts, np.zeros_like(starts[0])]
 
 
 class Problem:
@@ -95,10 +111,13 @@ class Problem:
         self.n_res = sum(y.size for _, y in exps)
 
     def split(self, z: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """``z`` as ``(modal θ, K)``."""
         n, ny = self.layout.n_states, self.layout.ny
         return z[: self.layout.size], z[self.layout.size :].reshape(n, ny)
 
     def residuals(self, z: FloatArray) -> FloatArray:
+        """Normalised prediction errors of every experiment, flattened; :data:`OUTSIDE` on
+        every sample where the predictor is not stable or the prediction is not finite."""
         theta, K = self.split(z)
         A, B, C, D, x0s, u0, y0 = _modal.to_state_space(self.layout, theta)
         AK = A - K @ C
@@ -116,21 +135,39 @@ class Problem:
         return r if np.all(np.isfinite(r)) else np.full(self.n_res, OUTSIDE)
 
 
+@dataclass(frozen=True)
+class Refined:
+    """The outcome of :func:`refine`."""
+
+    theta: FloatArray
+    K: FloatArray
+    before: float  # normalised RMS prediction error at the start
+    after: float  # ... at the end (``before`` when the start is returned)
+    evaluations: int
+    jacobian: FloatArray | None  # at the optimum (None: the start was returned)
+    residuals: FloatArray  # at the returned parameters
+
+
 def refine(
     layout: _modal.Layout,
     theta: FloatArray,
-    K: FloatArray,
+    starts: list[FloatArray],
     exps: list[tuple[FloatArray, FloatArray]],
     sy: FloatArray,
     horizon: int,
     max_nfev: int,
     tol: float = 1e-10,
-) -> tuple[FloatArray, FloatArray, float, float, int, FloatArray | None]:
+) -> Refined:
     """Trust-region least squares of every parameter and ``K`` on the normalised
-    ``horizon``-step prediction errors of ``exps``.
+    ``horizon``-step prediction errors of ``exps``, from the first of ``starts`` (gains of
+    :func:`initial_gains`) whose predictor is stable.
 
-    Returns ``(theta, K, rms before, rms after, evaluations, Jacobian at the optimum)``; the
-    start (and no Jacobian) when the refinement does not lower the error.
+    The start is returned (with no Jacobian) when the refinement does not lower the error.
+
+    Raises
+    ------
+    DataError
+        When no start makes the predictor stable.
     """
     # lazy: heavy (scipy.optimize)
     from scipy.optimize import least_squares
@@ -138,13 +175,17 @@ def refine(
     problem = Problem(layout, exps, sy, horizon)
     lo, hi = _modal.bounds(layout, _modal.STABLE_RADIUS)
     theta = np.clip(theta, lo, hi)
-    z0 = np.concatenate([theta, K.ravel()])
-    free = np.full(K.size, np.inf)
-    r0 = problem.residuals(z0)
-    if np.all(r0 == OUTSIDE):
-        K = np.zeros_like(K)  # the one-step predictor of an output-error model: A itself
+    for K in starts:
         z0 = np.concatenate([theta, K.ravel()])
         r0 = problem.residuals(z0)
+        if not np.all(r0 == OUTSIDE):
+            break
+    else:
+        raise DataError(
+            "pem focus='prediction': no Kalman gain tried makes the predictor stable for the "
+            "simulation-error model (its (A, C) may not be detectable); use focus='simulation'."
+        )
+    free = np.full(K.size, np.inf)
     with np.errstate(all="ignore"):
         sol = least_squares(
             problem.residuals,
@@ -161,58 +202,20 @@ def refine(
     n_res = problem.n_res
     before = float(np.sqrt(r0 @ r0 / n_res))
     after = float(np.sqrt(sol.fun @ sol.fun / n_res))
-    if not np.isfinite(after) or after >= before:
-        return theta, K, before, before, int(sol.nfev), None
+    if not np.isfinite(after) or after > before:
+        return Refined(theta, K, before, before, int(sol.nfev), None, r0)
     th, k = problem.split(np.asarray(sol.x))
-    return th, k, before, after, int(sol.nfev), np.asarray(sol.jac)
+    return Refined(th, k, before, after, int(sol.nfev), np.asarray(sol.jac), np.asarray(sol.fun))
 
 
-def covariance(
-    layout: _modal.Layout,
-    theta: FloatArray,
-    K: FloatArray,
-    jac: FloatArray,
-    residuals: FloatArray,
-    rep: StateSpace,
-) -> dict[str, Any] | None:
-    """Gauss–Newton covariance ``λ (JᵀJ)⁺`` of the prediction-error fit, mapped to the
-    entries of ``rep`` that vary (``K`` among them); the initial states are left out."""
-    s = np.linalg.svd(jac, compute_uv=False)
-    rank = int(np.sum(s > 1e-10 * s[0])) if s.size and s[0] > 0 else 0
-    if rank == 0 or residuals.size <= rank:
+def covariance(layout: _modal.Layout, refined: Refined, rep: StateSpace) -> dict[str, Any] | None:
+    """Gauss–Newton covariance of the prediction-error fit (:func:`refine`'s Jacobian and
+    residuals at the optimum), mapped to the entries of ``rep`` that vary, ``K`` among them
+    (:func:`tendonkit.plugins._modal.entry_covariance`); None without a Jacobian."""
+    if refined.jacobian is None:
         return None
-    lam = float(residuals @ residuals) / (residuals.size - rank)
-    cov_z = lam * np.linalg.pinv(jac.T @ jac, rcond=1e-10, hermitian=True)
-    s0 = {i for part in layout.slices["s0"] for i in range(part.start, part.stop)}
-    z = np.concatenate([theta, K.ravel()])
-    free = [i for i in range(z.size) if i not in s0]
-    keys: list[tuple[str, FloatArray]] = [("A", rep.A), ("B", rep.B), ("C", rep.C), ("D", rep.D)]
-    keys.append(("K", K))
-    if rep.u0 is not None:
-        keys.append(("u0", rep.u0))
-    if rep.y0 is not None:
-        keys.append(("y0", rep.y0))
-    names = [
-        f"{k}[{','.join(str(i) for i in idx)}]" for k, arr in keys for idx in np.ndindex(arr.shape)
-    ]
-
-    def flat(v: FloatArray) -> FloatArray:
-        A, B, C, D, _, u0, y0 = _modal.to_state_space(layout, v[: layout.size])
-        parts = {"A": A, "B": B, "C": C, "D": D, "K": v[layout.size :], "u0": u0, "y0": y0}
-        return np.concatenate([np.ravel(parts[k]) for k, _ in keys])
-
-    T = np.empty((len(names), len(free)))
-    for c, i in enumerate(free):
-        h = 1e-7 * max(abs(z[i]), 1e-3)
-        up, down = z.copy(), z.copy()
-        up[i] += h
-        down[i] -= h
-        T[:, c] = (flat(up) - flat(down)) / (2 * h)
-    keep = np.flatnonzero(np.any(np.abs(T) > 1e-12, axis=1))
-    Tk = T[keep]
-    cov = Tk @ cov_z[np.ix_(free, free)] @ Tk.T
-    return {
-        "parameters": [names[i] for i in keep],
-        "matrix": cov.tolist(),
-        "noise_variance": lam,
-    }
+    gn = _modal.gauss_newton_covariance(refined.jacobian, refined.residuals)
+    if gn is None:
+        return None
+    z = np.concatenate([refined.theta, refined.K.ravel()])
+    return _modal.entry_covariance(layout, z, gn[0], gn[1], rep)

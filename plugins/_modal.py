@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -407,3 +408,64 @@ def refine(
     if not np.isfinite(after) or after > before:
         return theta, before, before, int(sol.nfev)
     return np.asarray(sol.x), before, after, int(sol.nfev)
+
+
+# -- parameter covariance ---------------------------------------------------------------------
+
+
+def gauss_newton_covariance(J: FloatArray, r: FloatArray) -> tuple[FloatArray, float] | None:
+    """``(λ (JᵀJ)⁺, λ)`` of a least-squares fit with Jacobian ``J`` and residuals ``r`` at the
+    optimum, ``λ`` the residuals' variance; None when ``J`` has rank 0 or no residual is left
+    over."""
+    s = np.linalg.svd(J, compute_uv=False)
+    rank = int(np.sum(s > 1e-10 * s[0])) if s.size and s[0] > 0 else 0
+    if rank == 0 or r.size <= rank:
+        return None
+    lam = float(r @ r) / (r.size - rank)
+    cov = np.asarray(lam * np.linalg.pinv(J.T @ J, rcond=1e-10, hermitian=True), dtype=float)
+    return cov, lam
+
+
+def entry_covariance(
+    layout: Layout, z: FloatArray, cov_z: FloatArray, lam: float, rep: Any
+) -> dict[str, Any]:
+    """The covariance ``cov_z`` of ``z`` — θ, then the entries of a Kalman gain ``K`` (n, ny)
+    row by row where ``z`` is longer than θ — mapped to the entries of the stored state space
+    ``rep`` that vary (``"A[0,1]"``, … :mod:`tendonkit.uncertainty`'s names); the initial
+    states are left out.  The map from θ to the stored matrices involves no simulation and is
+    differentiated numerically."""
+    s0 = {i for part in layout.slices["s0"] for i in range(part.start, part.stop)}
+    free = [i for i in range(z.size) if i not in s0]
+    keys: list[tuple[str, Any]] = [("A", rep.A), ("B", rep.B), ("C", rep.C), ("D", rep.D)]
+    if z.size > layout.size:
+        keys.append(("K", z[layout.size :].reshape(layout.n_states, layout.ny)))
+    if rep.u0 is not None:
+        keys.append(("u0", rep.u0))
+    if rep.y0 is not None:
+        keys.append(("y0", rep.y0))
+    names = [
+        f"{k}[{','.join(str(i) for i in idx)}]"
+        for k, arr in keys
+        for idx in np.ndindex(np.shape(arr))
+    ]
+
+    def flat(v: FloatArray) -> FloatArray:
+        A, B, C, D, _, u0, y0 = to_state_space(layout, v[: layout.size])
+        parts = {"A": A, "B": B, "C": C, "D": D, "K": v[layout.size :], "u0": u0, "y0": y0}
+        return np.concatenate([np.ravel(parts[k]) for k, _ in keys])
+
+    T = np.empty((len(names), len(free)))
+    for c, i in enumerate(free):
+        h = 1e-7 * max(abs(z[i]), 1e-3)
+        up, down = z.copy(), z.copy()
+        up[i] += h
+        down[i] -= h
+        T[:, c] = (flat(up) - flat(down)) / (2 * h)
+    keep = np.flatnonzero(np.any(np.abs(T) > 1e-12, axis=1))
+    Tk = T[keep]
+    cov = Tk @ cov_z[np.ix_(free, free)] @ Tk.T
+    return {
+        "parameters": [names[i] for i in keep],
+        "matrix": cov.tolist(),
+        "noise_variance": lam,
+    }

@@ -1,9 +1,9 @@
 """PEM: prediction-error (output-error) identification of a linear state-space model.
 
-MATLAB's ``ssest``/``pem`` with a zero noise model: every parameter of a state-space model —
-``A``, ``B``, ``C``, ``D`` where asked, the initial state of every experiment, and the
-operating point (``y0``; ``u0`` for integrating plants) — is fitted by minimising the free-run
-*simulation* error, the criterion the model is judged by.  The subspace step
+MATLAB's ``ssest``/``pem`` with a zero noise model (the default ``focus``): every parameter of
+a state-space model — ``A``, ``B``, ``C``, ``D`` where asked, the initial state of every
+experiment, and the operating point (``y0``; ``u0`` for integrating plants) — is fitted by
+minimising the free-run *simulation* error, the criterion the model is judged by.  The subspace step
 (:mod:`tendonkit.plugins.n4sid`) gives the start.
 
 Algorithm:
@@ -289,37 +289,42 @@ class PEM:
             f"simulation-error refinement: normalised RMS {cost0:.4g} -> {cost:.4g} "
             f"({nfev} evaluations)",
         ]
-        K, jac = None, None
+        refined = None
         if self.focus == "prediction":
-            K0 = _innovation.initial_gain(layout, theta, exps)
-            theta, K, p0, p1, pfev, jac = _innovation.refine(
-                layout, theta, K0, exps, sy, self.horizon, self.max_iterations
+            shortest = min(e.n_samples for e in dataset.experiments)
+            if self.horizon >= shortest // 2:
+                raise OptionError(
+                    f"pem: horizon {self.horizon} leaves too few samples to predict in the "
+                    f"shortest experiment ({shortest}); use horizon < {max(shortest // 2, 1)}."
+                )
+            starts = _innovation.initial_gains(layout, theta, exps)
+            refined = _innovation.refine(
+                layout, theta, starts, exps, sy, self.horizon, self.max_iterations
             )
+            theta = refined.theta
             notes.append(
                 f"{self.horizon}-step prediction-error refinement with the Kalman gain K: "
-                f"normalised RMS {p0:.4g} -> {p1:.4g} ({pfev} evaluations)"
-            )
+                f"normalised RMS {refined.before:.4g} -> {refined.after:.4g} "
+                f"({refined.evaluations} evaluations)"
+                + ("" if refined.jacobian is not None else "; no lower error found: K is the "
+                   "start's Kalman gain and no covariance is stored")
+            )  # fmt: skip
         A, B, C, D, x0s, u0, y0 = _modal.to_state_space(layout, theta)
         rep = StateSpace(
             A=A,
             B=B,
             C=C,
             D=D,
-            K=K,
+            K=None if refined is None else refined.K,
             x0=x0s[0],
             u0=u0 if (self.offset and integ) else None,
             y0=y0 if (self.offset and not integ) else None,
         )
         details: dict[str, Any] = {"candidates": table} if table else {}
-        if K is None:
+        if refined is None:
             cov = _covariance(layout, theta, exps, sy, rep)
-        elif jac is not None:
-            r = _innovation.Problem(layout, exps, sy, self.horizon).residuals(
-                np.concatenate([theta, K.ravel()])
-            )
-            cov = _innovation.covariance(layout, theta, K, jac, r, rep)
         else:
-            cov = None
+            cov = _innovation.covariance(layout, refined, rep)
         if cov is not None:
             details["covariance"] = cov
         return build_model(self, dataset, rep, notes="; ".join(notes), details=details or None)
@@ -548,49 +553,15 @@ def _covariance(
     """Gauss–Newton covariance ``λ (JᵀJ)⁺`` mapped to the entries of ``rep`` that vary.
 
     ``J`` is the Jacobian of the normalised simulation errors at the optimum and ``λ`` their
-    variance; the map from the modal parameters to the stored matrices is differentiated
-    numerically (it involves no simulation).  The initial states are left out.
+    variance (:func:`tendonkit.plugins._modal.entry_covariance` maps it; the initial states
+    are left out).
     """
     J = _modal.residual_jacobian(layout, theta, exps, sy)
     r = _modal.residuals(layout, theta, exps, sy)
-    s = np.linalg.svd(J, compute_uv=False)
-    rank = int(np.sum(s > 1e-10 * s[0])) if s.size and s[0] > 0 else 0
-    if rank == 0 or r.size <= rank:
+    gn = _modal.gauss_newton_covariance(J, r)
+    if gn is None:
         return None
-    lam = float(r @ r) / (r.size - rank)
-    cov_theta = lam * np.linalg.pinv(J.T @ J, rcond=1e-10, hermitian=True)
-    sl = layout.slices
-    s0 = {i for part in sl["s0"] for i in range(part.start, part.stop)}
-    free = [i for i in range(layout.size) if i not in s0]
-    keys = [("A", rep.A), ("B", rep.B), ("C", rep.C), ("D", rep.D)]
-    if rep.u0 is not None:
-        keys.append(("u0", rep.u0))
-    if rep.y0 is not None:
-        keys.append(("y0", rep.y0))
-    names = [
-        f"{k}[{','.join(str(i) for i in idx)}]" for k, arr in keys for idx in np.ndindex(arr.shape)
-    ]
-
-    def flat(th: FloatArray) -> FloatArray:
-        A, B, C, D, _, u0, y0 = _modal.to_state_space(layout, th)
-        parts = {"A": A, "B": B, "C": C, "D": D, "u0": u0, "y0": y0}
-        return np.concatenate([parts[k].ravel() for k, _ in keys])
-
-    T = np.empty((len(names), len(free)))
-    for c, i in enumerate(free):
-        h = 1e-7 * max(abs(theta[i]), 1e-3)
-        up, down = theta.copy(), theta.copy()
-        up[i] += h
-        down[i] -= h
-        T[:, c] = (flat(up) - flat(down)) / (2 * h)
-    keep = np.flatnonzero(np.any(np.abs(T) > 1e-12, axis=1))
-    Tk = T[keep]
-    cov = Tk @ cov_theta[np.ix_(free, free)] @ Tk.T
-    return {
-        "parameters": [names[i] for i in keep],
-        "matrix": cov.tolist(),
-        "noise_variance": lam,
-    }
+    return _modal.entry_covariance(layout, theta, gn[0], gn[1], rep)
 
 
 @hookimpl

@@ -6,7 +6,8 @@ the names addressing entries of the state-space representation (``"A[0,1]"``, ``
 ``"C[0,0]"``, ``"D[0,0]"``, ``"K[0,0]"``, ``"u0[0]"``, ``"y0[0]"``; the Kalman gain ``K`` of a
 model fitted by its prediction error does not move a simulation, so its entries add nothing
 to the band).  The covariance is the Gauss–Newton one,
-``λ (JᵀJ)⁺`` with ``J`` the Jacobian of the normalised simulation errors at the optimum and
+``λ (JᵀJ)⁺`` with ``J`` the Jacobian of the normalised simulation errors (or, for a model
+fitted by its prediction error, prediction errors) at the optimum and
 ``λ`` their variance (Ljung, *System Identification*, 2nd ed., §9.3): it describes the scatter
 of the estimate under the noise seen in the residuals, not the error of a wrong structure.
 
@@ -56,8 +57,10 @@ def with_parameters(rep: StateSpace, names: list[str], values: FloatArray) -> St
         assert m is not None
         key, i, j = m.group(1), int(m.group(2)), m.group(3)
         if mats[key] is None:
-            size = rep.B.shape[1] if key == "u0" else rep.C.shape[0]
-            mats[key] = np.zeros(size)
+            if key == "K":
+                mats[key] = np.zeros((rep.n_states, rep.C.shape[0]))
+            else:
+                mats[key] = np.zeros(rep.B.shape[1] if key == "u0" else rep.C.shape[0])
         if j is None:
             mats[key][i] = v
         else:

@@ -8,9 +8,10 @@ import pytest
 import tendonkit as tk
 from tendonkit.compare import compare
 from tendonkit.dataset import Dataset, Experiment
-from tendonkit.errors import OptionError
-from tendonkit.plugins import _modal
+from tendonkit.errors import DataError, OptionError
+from tendonkit.plugins import _innovation, _modal
 from tendonkit.plugins.pem import PEM
+from tendonkit.predict import kalman_gain
 from tendonkit.realize import fold_offsets
 from tendonkit.schema import Block, Model, Signal, StateSpace
 from tendonkit.simulate import simulate
@@ -106,6 +107,30 @@ def test_integrating_plant_with_input_offset() -> None:
     assert model.provenance.training_fit["y1"] > 99.0
 
 
+def test_prediction_focus_on_an_integrating_plant_starts_from_a_stable_predictor() -> None:
+    """An integrator's pole is exactly 1, so neither the output-error predictor (K = 0) nor an
+    unstable start is inside the domain: the refinement starts from a stabilising gain and
+    fits K, and the stored model predicts with a stable predictor."""
+    data = _integrating_plant(u0=0.3)
+    model = tk.identify(data, "pem", order=2, integrator=True, focus="prediction")
+    rep = model.representation
+    assert isinstance(rep, StateSpace) and rep.K is not None
+    assert np.max(np.abs(np.linalg.eigvals(rep.A - rep.K @ rep.C))) < 1.0
+    assert "no lower error found" not in model.provenance.notes
+    assert "covariance" in model.provenance.details
+    # from the output-error predictor (K = 0: the integrator's pole 1) the next start is taken
+    layout, theta = PEM(order=2, integrator=True)._start(data, 2, True)
+    exps = [(e.u, e.y) for e in data.experiments]
+    sy = np.std(data.experiments[0].y, axis=0)
+    zero = np.zeros((layout.n_states, layout.ny))
+    A, _, C, *_ = _modal.to_state_space(layout, theta)
+    out = _innovation.refine(layout, theta, [zero, kalman_gain(A, C)], exps, sy, 1, 20)
+    assert out.jacobian is not None and out.after < out.before
+    assert np.max(np.abs(np.linalg.eigvals(A - out.K @ C))) < 1.0
+    with pytest.raises(DataError, match="no Kalman gain tried makes the predictor stable"):
+        _innovation.refine(layout, theta, [zero], exps, sy, 1, 20)
+
+
 def test_structure_selection_finds_the_order_and_records_it() -> None:
     """order=None: the true order of a clean system wins on held-out data; the table is stored."""
     data, _ = simulate_truth(random_state_space(3, 1, 1, seed=11), 3000, noise=0.001, seed=2)
@@ -169,7 +194,7 @@ def test_prediction_focus_fits_the_kalman_gain(horizon: int) -> None:
     rep = model.representation
     assert isinstance(rep, StateSpace) and rep.K is not None and oe.representation.K is None
     found = np.sort_complex(np.linalg.eigvals(rep.A - rep.K @ rep.C))
-    assert np.max(np.abs(found - np.sort_complex(poles))) < 0.03
+    assert np.max(np.abs(found - np.sort_complex(poles))) < 0.015  # measured 0.007, 0.010
     assert f"{horizon}-step prediction-error refinement" in model.provenance.notes
     v = valid.experiments[0]
     errors = {}
@@ -179,8 +204,9 @@ def test_prediction_focus_fits_the_kalman_gain(horizon: int) -> None:
     # the innovations' RMS is the best any predictor can do one step ahead
     floor = float(np.sqrt(np.mean(e[50:] ** 2)))
     assert errors["pem"] < errors["oe"]
-    if horizon == 1:
+    if horizon == 1:  # measured: 0.2989 against 0.3166, the floor 0.2982
         assert errors["pem"] < 1.02 * floor < errors["oe"]
+        assert errors["pem"] < 0.96 * errors["oe"]
     cov = model.provenance.details["covariance"]
     assert any(p.startswith("K[") for p in cov["parameters"])
     # the band of a simulation reads the covariance and leaves K out (it moves no simulation)

@@ -476,13 +476,6 @@ def _input_lags(model: Model, m: int) -> list[int]:
     return [1, 2, 3, 4]
 
 
-def _output_lags(model: Model) -> list[int]:
-    """The lags at which the model reads its outputs (ARX: ``1 .. na``)."""
-    rep = model.representation
-    na = len(rep.A) if isinstance(rep, ARX) else 0
-    return list(range(1, na + 1)) if na else [1, 2]
-
-
 class StaticNonlinearity(_TermEffect):
     """A memoryless nonlinearity on a signal path: Hammerstein, Wiener, Wiener–Hammerstein."""
 
@@ -490,9 +483,9 @@ class StaticNonlinearity(_TermEffect):
     cause = "static_nonlinearity"
     description = (
         "Static nonlinearity: a memoryless curve on the input path (Hammerstein: u^2, u^3 or |u| "
-        "at every input lag the model reads), or on the input and output paths (Wiener, "
-        "Wiener-Hammerstein, a sensor curve such as a rectifier: the same powers of the "
-        "outputs at every output lag)."
+        "at every input lag the model reads), after the dynamics (Wiener: a polynomial output "
+        "block, a sensor curve such as a rectifier), or between two filters "
+        "(Wiener-Hammerstein)."
     )
 
     #: Degrees of the curve between the two filters (each as powers at every input lag).
@@ -505,9 +498,8 @@ class StaticNonlinearity(_TermEffect):
 
     def candidates(self, ctx: Context) -> list[tuple[dict[str, Any], list[Term]]]:
         base = ctx.baseline
-        u, y = ctx.train.u, ctx.train.y
+        u = ctx.train.u
         mu_u, sd_u = u.mean(axis=0), np.where(u.std(axis=0) > 0, u.std(axis=0), 1.0)
-        mu_y, sd_y = y.mean(axis=0), np.where(y.std(axis=0) > 0, y.std(axis=0), 1.0)
 
         def powers(names: tuple[str, ...], lags: list[list[int]], mu, sd, ps) -> list[Term]:  # type: ignore[no-untyped-def]
             return [
@@ -518,28 +510,19 @@ class StaticNonlinearity(_TermEffect):
             ]
 
         in_lags = [_input_lags(base, m) for m in range(len(ctx.train.inputs))]
-        out_lags = [_output_lags(base)] * len(ctx.train.outputs)
         hammer = powers(ctx.train.inputs, in_lags, mu_u, sd_u, (2, 3))
         absu = [
             Term((Factor(name, fn="abs", lag=lag, scale=float(1 / sd_u[j])),))
             for j, name in enumerate(ctx.train.inputs)
             for lag in in_lags[j]
         ]
-        # The output side's even part only: a curve on the signal path (a diode, a rectifier,
-        # an asymmetric sensor) is not odd, while a cubic restoring force is — the odd powers
-        # of the outputs are nonlinear_stiffness's structure, not this one's.
-        wiener = powers(ctx.train.outputs, out_lags, mu_y, sd_y, (2,))
+        # No powers of past outputs: inside the recursion they are nonlinear *dynamics* (a
+        # tank's outflow sqrt(h), a time constant that moves with the level), not a curve on a
+        # signal path.  A curve after the dynamics is the Wiener candidate's output block, one
+        # between two filters the Wiener-Hammerstein candidates' (builders).
         return [
             ({"structure": "Hammerstein", "curve": "cubic polynomial"}, hammer),
             ({"structure": "Hammerstein", "curve": "|u|"}, absu),
-            (
-                {"structure": "Wiener-Hammerstein", "curve": "cubic in, square out"},
-                hammer + wiener,
-            ),
-            (
-                {"structure": "Wiener-Hammerstein", "curve": "|u| and output polynomial"},
-                absu + wiener,
-            ),
         ]
 
     def builders(self, ctx: Context) -> Candidates:

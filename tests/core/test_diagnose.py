@@ -15,7 +15,13 @@ from tendonkit.cli.diagnose import render_diagnosis
 from tendonkit.dataset import Dataset, Experiment
 from tendonkit.diagnose import diagnose
 from tendonkit.diagnose.clip import atom_test
-from tendonkit.diagnose.engine import POOR_TRAINING_FIT, Settings, _encompassing, _name_cause
+from tendonkit.diagnose.engine import (
+    POOR_TRAINING_FIT,
+    Settings,
+    _encompassing,
+    _name_cause,
+    special_wins,
+)
 from tendonkit.diagnose.findings import Finding
 from tendonkit.diagnose.report import write_report
 from tendonkit.diagnose.stats import autocorrelation_time, holm, loss_test
@@ -897,6 +903,19 @@ def test_a_shape_that_gains_as_much_as_its_significant_general_curve_contests_it
     summary = {"named_effect": "saturation", "findings": [named.to_dict(), curve.to_dict()]}
     (note,) = [n for n in evidence_notes(summary) if "on its own" in n]
     assert "(static_nonlinearity as tested: its refined model simulated the validation" in note
+
+
+@pytest.mark.parametrize(
+    ("general", "special", "wins"),
+    [
+        (13.76, 13.72, True),  # a pump clip against its general curve: the simpler shape
+        (13.76, 13.52, True),  # less than min_gain more: not enough
+        (13.76, 13.50, False),  # more than min_gain more: the curve earns its parameters
+        (15.90, 20.88, True),  # the special shape gains more
+    ],
+)
+def test_a_general_curve_must_gain_min_gain_more_than_its_special_shape(general, special, wins):
+    assert special_wins(general, special, 0.25) is wins
 
 
 @pytest.mark.parametrize(

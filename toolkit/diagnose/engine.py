@@ -1675,10 +1675,11 @@ def conclude(
                 for f in (general, special)
             }
             gains = {e: g for e, (g, _) in handed.items()}
-            # the general curve must earn its extra parameters by min_gain, the smallest gain
-            # worth naming (fast tanks, seed 821: a pump clip +13.72 against +13.76)
-            better = gains[general.effect] - settings.min_gain
-            winner = special if gains[special.effect] >= better else general
+            winner = (
+                special
+                if special_wins(gains[general.effect], gains[special.effect], settings.min_gain)
+                else general
+            )
             contests[winner.effect] = {
                 "between": [general.effect, special.effect],
                 "refined_gains": gains,
@@ -1740,6 +1741,14 @@ def conclude(
         baseline_choice=base.choice,
         output_std={n: float(v) for n, v in zip(base.model.output_names, np.std(ref.y, axis=0))},
     )
+
+
+def special_wins(general: float, special: float, min_gain: float) -> bool:
+    """The contest of a general cause with its special case (:func:`conclude`): the special
+    shape is named unless the general one gains ``min_gain`` more — the smallest gain worth
+    naming is also what the general curve's extra parameters must earn (measured: a pump
+    clip refined +13.72 points against the curve's +13.76 as tested; the clip is named)."""
+    return special >= general - min_gain
 
 
 def _recorded(

@@ -528,7 +528,7 @@ class StaticNonlinearity(_TermEffect):
     def builders(self, ctx: Context) -> Candidates:
         """The term candidates, and a Wiener structure: a cubic curve after the model.
 
-        The terms put the curve on past signals inside the recursion (a NARX form).  A curve
+        The terms put the curve on past inputs inside the recursion (Hammerstein).  A curve
         *after* the dynamics — a rectifying speed sensor, a diode at the output — is not a
         function of past outputs, whose values it has already bent: it acts on the model's
         inner signal, which is not measured.  The Wiener candidate is the baseline structure

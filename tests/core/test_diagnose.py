@@ -903,13 +903,20 @@ def test_a_shape_that_gains_as_much_as_its_significant_general_curve_contests_it
     summary = {"named_effect": "saturation", "findings": [named.to_dict(), curve.to_dict()]}
     (note,) = [n for n in evidence_notes(summary) if "on its own" in n]
     assert "(static_nonlinearity as tested: its refined model simulated the validation" in note
+    assert "gains less than min_gain more" not in note
+    # the special shape named with the smaller gain says why (special_wins)
+    named.test["contest"]["refined_gains"] = {"saturation": 13.72, "static_nonlinearity": 13.76}
+    summary = {"named_effect": "saturation", "findings": [named.to_dict(), curve.to_dict()]}
+    (note,) = [n for n in evidence_notes(summary) if "on its own" in n]
+    assert "the general curve gains less than min_gain more" in note
 
 
 @pytest.mark.parametrize(
     ("general", "special", "wins"),
     [
-        (13.76, 13.72, True),  # a pump clip against its general curve: the simpler shape
+        (13.76, 13.72, True),  # a pump clip against its curve (fast tanks 821, before 2026-11-27)
         (13.76, 13.52, True),  # less than min_gain more: not enough
+        (13.76, 13.51, True),  # exactly min_gain more: not enough either
         (13.76, 13.50, False),  # more than min_gain more: the curve earns its parameters
         (15.90, 20.88, True),  # the special shape gains more
     ],
@@ -964,8 +971,9 @@ def test_an_extension_explains_what_an_unfit_baseline_cannot(
 def test_a_contest_compares_the_models_that_would_be_handed_on(monkeypatch, refined_fit, expected):
     """A contest's gain of each extension is its refined model's, or its tested one's where the
     refined model simulates the validation data more than min_gain worse, as refine_named then
-    keeps the tested one (fast tanks, seed 822: the pump curve's refined model diverged and a
-    dead zone won the contest against -inf; as tested the curve gains +19.3 against +14.4)."""
+    keeps the tested one (fast tanks, seed 822, with the curve candidates of before 2026-11-27:
+    the pump curve's refined model diverged and a dead zone won the contest against -inf; as
+    tested the curve gains +19.3 against +14.4)."""
     import types
 
     from tendonkit.diagnose import engine
@@ -1340,6 +1348,10 @@ def test_a_candidate_that_reshapes_a_named_cause_is_left_out_of_the_choice():
     assert reshapes(
         "saturation", {"where": "output"}, "static_nonlinearity", {"structure": "Wiener"}
     )
+    # a curve between two filters acts on the input path: an output clip is another cause
+    wh = {"structure": "Wiener-Hammerstein"}
+    assert reshapes("saturation", {"where": "inputs"}, "static_nonlinearity", wh)
+    assert not reshapes("saturation", {"where": "output"}, "static_nonlinearity", wh)
     assert reshapes("coulomb_friction", {"structure": "sign of velocity"}, "hysteresis", {})
     assert not reshapes("coulomb_friction", {"structure": "play in force space"}, "hysteresis", {})
     assert not reshapes("saturation", {"where": "inputs"}, "dead_zone", {})  # two kinds

@@ -1746,8 +1746,9 @@ def conclude(
 def special_wins(general: float, special: float, min_gain: float) -> bool:
     """The contest of a general cause with its special case (:func:`conclude`): the special
     shape is named unless the general one gains ``min_gain`` more — the smallest gain worth
-    naming is also what the general curve's extra parameters must earn (measured: a pump
-    clip refined +13.72 points against the curve's +13.76 as tested; the clip is named)."""
+    naming is also what the general curve's extra parameters must earn (measured with the curve
+    candidates of before 2026-11-27, fast tanks seed 821: a pump clip refined +13.72 points
+    against the curve's +13.76 as tested; the clip is named)."""
     return special >= general - min_gain
 
 
@@ -1952,9 +1953,10 @@ def _refined_gain(
     or cannot be computed, as :func:`refine_named` keeps the tested one then.  The refinement
     starts from the tested fit (step 7's held-out check and continued refinement are not run
     here), so the contest compares the models step 7 would hand on as far as the validation
-    data can tell.  On the fast tanks (seed 822) the pump
-    curve's refined model diverged on the validation data, and a dead zone won the contest
-    against ``-inf``; the curve as tested gains +19.3 against the dead zone's +14.4."""
+    data can tell.  On the fast tanks (seed 822, with the curve candidates of before
+    2026-11-27) the pump curve's refined model diverged on the validation data, and a dead
+    zone won the contest against ``-inf``; the curve as tested gains +19.3 against the dead
+    zone's +14.4."""
     if f.model is None:
         return -math.inf, False
     try:

@@ -111,7 +111,8 @@ def reshaping_paths(cause: str, params: dict[str, Any]) -> frozenset[str]:
         return {
             "Hammerstein": frozenset({"inputs"}),
             "Wiener": frozenset({"outputs"}),
-            "Wiener-Hammerstein": frozenset({"inputs", "outputs"}),
+            # the curve between two filters acts on the (filtered) input path
+            "Wiener-Hammerstein": frozenset({"inputs"}),
         }.get(structure, frozenset())
     if cause == "dead_zone":
         return frozenset({"inputs"})

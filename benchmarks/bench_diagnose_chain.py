@@ -30,7 +30,8 @@ measured (1 % noise), outflows ``0.5·sqrt(h)``, a pump of gain 0.25 driven arou
 constants of 20 and 30 s).  Its effects: a dead time of 15–40 s, a pump that starts at
 4–4.6 V (``dead_zone``), a pump limited at 5.6–6.2 V (``saturation``), a slew limit of
 0.02–0.05 V/s (``actuator_lag``) and a pump curve ``u + c (u - 5)²`` (``static_nonlinearity``).
-The square root of the outflows is a static nonlinearity of the plant itself.
+The square root of the outflows is the plant's own nonlinear dynamics (a time constant that
+moves with the level; a `none` case that names a cause is wrong here).
 
 ``--plant sea`` runs a third: a series-elastic actuator at 5 ms (written on 2026-11-27, after
 the loop of ``actuator_lag`` was built on the robot, and tuned on nothing).  A proportional

@@ -209,9 +209,11 @@ def refine(
 
 
 def covariance(layout: _modal.Layout, refined: Refined, rep: StateSpace) -> dict[str, Any] | None:
-    """Gauss–Newton covariance of the prediction-error fit (:func:`refine`'s Jacobian and
-    residuals at the optimum), mapped to the entries of ``rep`` that vary, ``K`` among them
-    (:func:`tendonkit.plugins._modal.entry_covariance`); None without a Jacobian."""
+    """Gauss–Newton covariance of the one-step prediction-error fit (:func:`refine`'s
+    Jacobian and residuals at the optimum), mapped to the entries of ``rep`` that vary, ``K``
+    among them (:func:`tendonkit.plugins._modal.entry_covariance`); None without a Jacobian.
+    For one-step errors only: errors ``k`` steps ahead are correlated over ``k - 1`` samples,
+    which ``λ (JᵀJ)⁺`` does not count (:class:`~tendonkit.plugins.pem.PEM` stores none then)."""
     if refined.jacobian is None:
         return None
     gn = _modal.gauss_newton_covariance(refined.jacobian, refined.residuals)

@@ -18,6 +18,9 @@ Why this form:
   :func:`scipy.signal.lfilter`, each a compiled loop over the record — far less than the
   ``n² + n(nu + ny)`` simulations of finite differences, and exact.
 
+The parameters' Gauss–Newton covariance (:func:`gauss_newton_covariance`) is mapped to the
+entries of the stored matrices by :func:`entry_covariance`, for both of pem's criteria.
+
 The redundancy left (each mode's ``b`` and ``c`` can trade a common scale) is a one-dimensional
 valley per mode that the trust-region solver handles; MATLAB's ``ssest`` removes the same kind
 of redundancy of its full parameterisation with data-driven local coordinates.
@@ -32,6 +35,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 from scipy.signal import lfilter
+
+from tendonkit.schema import StateSpace
 
 FloatArray = NDArray[np.float64]
 ComplexArray = NDArray[np.complex128]
@@ -427,7 +432,7 @@ def gauss_newton_covariance(J: FloatArray, r: FloatArray) -> tuple[FloatArray, f
 
 
 def entry_covariance(
-    layout: Layout, z: FloatArray, cov_z: FloatArray, lam: float, rep: Any
+    layout: Layout, z: FloatArray, cov_z: FloatArray, lam: float, rep: StateSpace
 ) -> dict[str, Any]:
     """The covariance ``cov_z`` of ``z`` — θ, then the entries of a Kalman gain ``K`` (n, ny)
     row by row where ``z`` is longer than θ — mapped to the entries of the stored state space

@@ -1,4 +1,4 @@
-"""Built-in effects that extend a model with nonlinear terms of its past outputs.
+"""Built-in effects that extend a model with nonlinear terms of its past outputs (and inputs).
 
 - ``coulomb_friction``: ``tanh(Δ_m y[k-1] / ε)`` per output — a smoothed sign of the velocity
   (with ``tanh²`` for asymmetric friction) — or a play on every input (friction in a force
@@ -7,7 +7,11 @@
 - ``gravity``: a constant (operating-point load) and ``cos(y[k-1])`` for angle outputs;
 - ``hysteresis``: a hysteresis operator of the past output — a Bouc-Wen state
   ``bouc_wen(y[k-1])`` or a play ``play(y[k-1])`` (a restoring force with a memory of the
-  path, carried from step to step by every simulator).
+  path, carried from step to step by every simulator);
+- ``static_nonlinearity``: a curve of the past *inputs* (Hammerstein: ``u²``, ``u³`` or
+  ``|u|`` at every input lag), a polynomial output block after the dynamics (Wiener) or a
+  curve between two filters (Wiener–Hammerstein) — no powers of past outputs, which would be
+  nonlinear dynamics.
 
 Each effect proposes a few structures and scales, fits each on the training data with
 :func:`tendonkit.diagnose.extend.extend_with_terms` (which works for every representation) and keeps

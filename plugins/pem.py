@@ -264,6 +264,12 @@ class PEM:
                 f"pem: order {self.order} leaves no state besides the {ny} integrator(s); "
                 f"use order >= {ny + 1}."
             )
+        shortest = min(e.n_samples for e in dataset.experiments)
+        if self.focus == "prediction" and self.horizon >= shortest // 2:
+            raise OptionError(
+                f"pem: horizon {self.horizon} leaves too few samples to predict in the "
+                f"shortest experiment ({shortest}); use horizon < {max(shortest // 2, 1)}."
+            )
         exps = [(e.u, e.y) for e in dataset.experiments]
         sy = np.std(np.vstack([y for _, y in exps]), axis=0)
         sy[~(sy > 0)] = 1.0
@@ -291,12 +297,6 @@ class PEM:
         ]
         refined = None
         if self.focus == "prediction":
-            shortest = min(e.n_samples for e in dataset.experiments)
-            if self.horizon >= shortest // 2:
-                raise OptionError(
-                    f"pem: horizon {self.horizon} leaves too few samples to predict in the "
-                    f"shortest experiment ({shortest}); use horizon < {max(shortest // 2, 1)}."
-                )
             starts = _innovation.initial_gains(layout, theta, exps)
             refined = _innovation.refine(
                 layout, theta, starts, exps, sy, self.horizon, self.max_iterations
@@ -308,6 +308,8 @@ class PEM:
                 f"({refined.evaluations} evaluations)"
                 + ("" if refined.jacobian is not None else "; no lower error found: K is the "
                    "start's Kalman gain and no covariance is stored")
+                + ("" if self.horizon == 1 else "; no covariance stored (errors several steps "
+                   "ahead are correlated)")
             )  # fmt: skip
         A, B, C, D, x0s, u0, y0 = _modal.to_state_space(layout, theta)
         rep = StateSpace(
@@ -323,8 +325,10 @@ class PEM:
         details: dict[str, Any] = {"candidates": table} if table else {}
         if refined is None:
             cov = _covariance(layout, theta, exps, sy, rep)
-        else:
+        elif self.horizon == 1:
             cov = _innovation.covariance(layout, refined, rep)
+        else:
+            cov = None
         if cov is not None:
             details["covariance"] = cov
         return build_model(self, dataset, rep, notes="; ".join(notes), details=details or None)

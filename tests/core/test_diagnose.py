@@ -903,12 +903,12 @@ def test_a_shape_that_gains_as_much_as_its_significant_general_curve_contests_it
     summary = {"named_effect": "saturation", "findings": [named.to_dict(), curve.to_dict()]}
     (note,) = [n for n in evidence_notes(summary) if "on its own" in n]
     assert "(static_nonlinearity as tested: its refined model simulated the validation" in note
-    assert "gains less than min_gain more" not in note
+    assert "gains no more than min_gain more" not in note
     # the special shape named with the smaller gain says why (special_wins)
     named.test["contest"]["refined_gains"] = {"saturation": 13.72, "static_nonlinearity": 13.76}
     summary = {"named_effect": "saturation", "findings": [named.to_dict(), curve.to_dict()]}
     (note,) = [n for n in evidence_notes(summary) if "on its own" in n]
-    assert "the general curve gains less than min_gain more" in note
+    assert "the general curve gains no more than min_gain more" in note
 
 
 @pytest.mark.parametrize(

@@ -108,8 +108,8 @@ def test_cascaded_tanks_is_saturation(tmp_path):
         in text
     )
     assert "the fit gain alone: p = 0." in text
-    # A general static curve (the Bernoulli outflow's square root, and the clip) gains more;
-    # the clip, a special case of it, is what the data show.
+    # A general static curve (here the Hammerstein or Wiener curve bending with the clip)
+    # gains more; the clip, a special case of it, is what the data show.
     assert "static_nonlinearity gains more" in text and "special case" in text
     html = write_report(d, valid, tmp_path / "report").read_text()
     assert "Seen in the data" in html

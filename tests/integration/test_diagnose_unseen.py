@@ -343,6 +343,9 @@ def test_a_shape_contest_compares_the_models_handed_on(effect, seed, special, as
     assert contest["named"] == effect
     assert contest["between"] == ["static_nonlinearity", special]
     assert contest["kept_as_tested"] == as_tested
+    # both significant on their own (the contest is between two significant findings)
+    p_adj = {f.effect: f.p_adjusted for f in d.findings}
+    assert p_adj["static_nonlinearity"] < 0.01 and p_adj[special] < 0.01
     gains = contest["refined_gains"]
     other = "static_nonlinearity" if effect == special else special
     assert gains[effect] > gains[other] + 0.25

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -17,7 +19,7 @@ from tendonkit.schema import Block, Model, Signal, StateSpace
 from tendonkit.simulate import simulate
 from tendonkit.stepper import Stepper
 from tendonkit.testsystems import random_state_space, simulate_truth
-from tendonkit.uncertainty import simulate_band
+from tendonkit.uncertainty import simulate_band, with_parameters
 
 
 def _data(u: np.ndarray, y: np.ndarray, dt: float = 0.01, splits: int = 1) -> Dataset:
@@ -207,11 +209,24 @@ def test_prediction_focus_fits_the_kalman_gain(horizon: int) -> None:
     if horizon == 1:  # measured: 0.2989 against 0.3166, the floor 0.2982
         assert errors["pem"] < 1.02 * floor < errors["oe"]
         assert errors["pem"] < 0.96 * errors["oe"]
+    if horizon > 1:  # errors several steps ahead are correlated: no covariance from them
+        assert "covariance" not in model.provenance.details
+        assert "no covariance stored" in model.provenance.notes
+        return
     cov = model.provenance.details["covariance"]
     assert any(p.startswith("K[") for p in cov["parameters"])
     # the band of a simulation reads the covariance and leaves K out (it moves no simulation)
     nominal, half = simulate_band(model, v.u, v.y)
     assert nominal.shape == half.shape == v.y.shape and np.all(half[50:] > 0)
+    # a covariance naming K entries on a model stored without K sets them (a hand-made file)
+    bare = dataclasses.replace(rep, K=None)
+    assert with_parameters(bare, ["K[1,0]"], np.array([0.5])).K[1, 0] == 0.5
+    # the horizon is checked against the data before anything is fitted
+    with pytest.raises(OptionError, match="leaves too few samples"):
+        e = train.experiments[0]
+        short = Experiment(t=e.t[:30], u=e.u[:30], y=e.y[:30], name="short")
+        tk.identify(train.with_experiments([short]), "pem", focus="prediction", horizon=15,
+                    **opts)  # fmt: skip
 
 
 def test_offsets_in_folded_and_terms_paths_agree() -> None:

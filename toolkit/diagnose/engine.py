@@ -1745,7 +1745,7 @@ def conclude(
 
 def special_wins(general: float, special: float, min_gain: float) -> bool:
     """The contest of a general cause with its special case (:func:`conclude`): the special
-    shape is named unless the general one gains ``min_gain`` more — the smallest gain worth
+    shape is named unless the general one gains more than ``min_gain`` more — the smallest gain worth
     naming is also what the general curve's extra parameters must earn (measured with the curve
     candidates of before 2026-11-27, fast tanks seed 821: a pump clip refined +13.72 points
     against the curve's +13.76 as tested; the clip is named)."""

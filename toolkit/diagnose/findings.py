@@ -437,7 +437,7 @@ def _as_tested(contest: dict[str, Any]) -> str:
     other = next((e for e in contest.get("between", []) if e != named), None)
     if named in gains and other in gains and gains[named] < gains[other]:
         out += (
-            "; the general curve gains less than min_gain more, which does not earn its extra "
+            "; the general curve gains no more than min_gain more, which does not earn its extra "
             "parameters"
         )
     return out

@@ -7,7 +7,9 @@ Two mechanisms cover every representation, so an identifier plugin needs no chan
   extra regressors Θ over *past* outputs (lag >= 1) and inputs.  ARX: least squares on the
   ARX regressors plus Θ.  Sparse map (SINDYc): least squares on the active library terms plus
   Θ.  State space: ``A`` and ``C`` are kept, ``B``, ``D``, ``E`` and the initial states are
-  re-estimated by output-error least squares with Θ computed from the measured outputs.
+  re-estimated by output-error least squares with Θ computed from the measured outputs.  A
+  model with blocks is regressed on what its representation sees: the inputs after its input
+  blocks, the outputs before its output blocks (:func:`driven_outputs`).
 - **blocks** (delay, dead zone, saturation, play, lag): the data are transformed, the baseline
   identifier is run again and the block is attached (:func:`transform_inputs`,
   :func:`drop_samples`).
@@ -25,7 +27,15 @@ from ..dataset import Dataset, Experiment
 from ..errors import SchemaError
 from ..regression import scaled_lstsq, term_columns_of
 from ..schema import ARX, Block, Model, SparseMap, StateSpace
-from ..simulate import aligned, inner_outputs, simulate, transform_inputs, unit_responses
+from ..simulate import (
+    aligned,
+    inner_outputs,
+    play_operator,
+    simulate,
+    simulate_dataset,
+    transform_inputs,
+    unit_responses,
+)
 from ..terms import Term
 
 FloatArray = NDArray[np.float64]
@@ -36,6 +46,32 @@ def _signals(model: Model, e: Experiment) -> dict[str, FloatArray]:
         **{n: e.u[:, j] for j, n in enumerate(model.input_names)},
         **{n: e.y[:, j] for j, n in enumerate(model.output_names)},
     }
+
+
+def driven_outputs(model: Model, data: Dataset) -> Dataset:
+    """``data`` with its outputs taken back through ``model``'s output blocks: the signal the
+    representation produces, on which a regression of it is fitted.
+
+    A polynomial curve is inverted (:func:`~tendonkit.simulate.inner_outputs`).  A play's
+    input is not a function of its output; its driven signal is ``y + (x̂ - play(x̂))``, the
+    side of the gap read from the noise-free simulation ``x̂`` of the representation (as the
+    backlash effect builds it, ``plugins/effects_blocks.py``).  A clip passes what it does not
+    clip, and is left as measured.
+    """
+    plays = [b for b in model.output_blocks if b.kind == "play"]
+    sims = simulate_dataset(model.replace(output_blocks=()), data) if plays else None
+    names = model.output_names
+    exps = []
+    for i, e in enumerate(data.experiments):
+        y = inner_outputs(model, e.y)
+        if sims is not None:
+            sim = np.where(np.isfinite(sims[i]), sims[i], e.y)
+            for b in plays:
+                j = names.index(b.signal)
+                x = sim[:, j]
+                y[:, j] = e.y[:, j] + (x - play_operator(x, float(b.params["width"])))
+        exps.append(dataclasses.replace(e, y=y))
+    return data.with_experiments(exps)
 
 
 def with_note(model: Model, text: str) -> Model:
@@ -70,6 +106,9 @@ def extend_with_terms(
         # The regressors are what the representation sees: inputs after the model's blocks
         # (an extension of an already extended model, e.g. the next step of a diagnosis).
         data = transform_inputs(data, model.input_blocks)
+    if model.output_blocks and isinstance(rep, ARX | SparseMap):
+        # ... and outputs before its output blocks: the representation's own outputs
+        data = driven_outputs(model, data)
     if isinstance(rep, ARX):
         new = _extend_arx(model, rep, data, terms)
     elif isinstance(rep, SparseMap):

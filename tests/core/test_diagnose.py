@@ -1460,33 +1460,44 @@ def test_a_state_space_extension_identified_around_an_operating_point_keeps_its_
     assert fits[0.0] > 95.0 and abs(fits[3.0] - fits[0.0]) < 1.0, fits
 
 
-def test_terms_added_to_a_model_with_output_blocks_are_fitted_on_its_own_outputs():
-    """An ARX behind a play (backlash at the output, or a Wiener curve): its regression is on
-    the signal the ARX produces, not on the measured outputs after the block.  Extending it
-    with a term (a constant, which the system does not need) keeps its simulation fit; fitted
-    on the measured outputs, as it was until 2026-11-27, every term extension after a named
-    play lost 3-5 points on the robot plant and the play's second cause (gravity) was missed."""
+@pytest.mark.parametrize("chain", ["play", "input delay, play", "curve, play"])
+def test_terms_added_to_a_model_with_output_blocks_are_fitted_on_its_own_outputs(chain):
+    """An ARX behind output blocks (a play: backlash at the output; a Wiener curve; an input
+    block before it): its regression is on the signal the ARX produces, read back through the
+    blocks from the last to the first, with the input blocks applied once.  Extending it with
+    a term (a constant, which the system does not need) keeps its simulation fit; fitted on
+    the measured outputs, as it was until 2026-11-27, every term extension after a named play
+    lost 3-5 points on the robot plant and the play's second cause (gravity) was missed."""
     import tendonkit as tk
     from tendonkit.diagnose.effect import mean_fit
     from tendonkit.diagnose.extend import driven_outputs, extend_with_terms
     from tendonkit.schema import Block
-    from tendonkit.simulate import play_operator
+    from tendonkit.simulate import apply_block, play_operator
     from tendonkit.terms import Term
 
     rng = np.random.default_rng(3)
     n = 3000
     u = lfilter([1.0], [1.0, -0.9], rng.standard_normal(n))
-    x = lfilter([0.0, 0.2], [1.0, -1.5, 0.7], u)
-    width = 0.3 * x.std()
-    y = play_operator(x, width) + 0.002 * x.std() * rng.standard_normal(n)
+    delay = Block("delay", "u", {"samples": 5.0})
+    ud = apply_block(delay, u) if "delay" in chain else u
+    x = lfilter([0.0, 0.2], [1.0, -1.5, 0.7], ud)
+    sd = x.std()
+    curve = Block("polynomial", "y", {"c0": 0.0, "c1": 1.0, "c2": 0.0, "c3": 0.3 / sd**2})
+    v = apply_block(curve, x) if "curve" in chain else x
+    width = 0.3 * v.std()
+    y = play_operator(v, width) + 0.002 * sd * rng.standard_normal(n)
     data = Dataset.from_arrays(u[:, None], y[:, None], dt=0.01, inputs=("u",), outputs=("y",))
-    driven = Dataset.from_arrays(u[:, None], x[:, None], dt=0.01, inputs=("u",), outputs=("y",))
+    driven = Dataset.from_arrays(ud[:, None], x[:, None], dt=0.01, inputs=("u",), outputs=("y",))
     inner = tk.identify(driven, "arx", na=2, nb=2, nk=1)
-    model = inner.replace(output_blocks=(Block("play", "y", {"width": float(width)}),))
-    # the driven signal read back from the model's own simulation: the true one, where the
-    # model is right
+    play = Block("play", "y", {"width": float(width)})
+    model = inner.replace(
+        input_blocks=(delay,) if "delay" in chain else (),
+        output_blocks=(curve, play) if "curve" in chain else (play,),
+    )
+    # the representation's own outputs read back from the model's simulation: the true ones,
+    # where the model is right
     back = driven_outputs(model, data).experiments[0].y[:, 0]
-    assert np.sqrt(np.mean((back - x) ** 2)) < 0.05 * x.std()
+    assert np.sqrt(np.mean((back - x) ** 2)) < 0.05 * sd
     ext = extend_with_terms(model, data, [Term()])
     assert mean_fit(ext, data) > mean_fit(model, data) - 0.5 > 90.0
 

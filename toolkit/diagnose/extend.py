@@ -7,9 +7,9 @@ Two mechanisms cover every representation, so an identifier plugin needs no chan
   extra regressors Θ over *past* outputs (lag >= 1) and inputs.  ARX: least squares on the
   ARX regressors plus Θ.  Sparse map (SINDYc): least squares on the active library terms plus
   Θ.  State space: ``A`` and ``C`` are kept, ``B``, ``D``, ``E`` and the initial states are
-  re-estimated by output-error least squares with Θ computed from the measured outputs.  A
-  model with blocks is regressed on what its representation sees: the inputs after its input
-  blocks, the outputs before its output blocks (:func:`driven_outputs`).
+  re-estimated by output-error least squares with Θ computed from the measured outputs.  An
+  ARX or a sparse map with blocks is regressed on what its representation sees: the inputs
+  after its input blocks, the outputs before its output blocks (:func:`driven_outputs`).
 - **blocks** (delay, dead zone, saturation, play, lag): the data are transformed, the baseline
   identifier is run again and the block is attached (:func:`transform_inputs`,
   :func:`drop_samples`).
@@ -29,8 +29,9 @@ from ..regression import scaled_lstsq, term_columns_of
 from ..schema import ARX, Block, Model, SparseMap, StateSpace
 from ..simulate import (
     aligned,
+    apply_block,
+    curve_inverse,
     inner_outputs,
-    play_operator,
     simulate,
     simulate_dataset,
     transform_inputs,
@@ -49,28 +50,39 @@ def _signals(model: Model, e: Experiment) -> dict[str, FloatArray]:
 
 
 def driven_outputs(model: Model, data: Dataset) -> Dataset:
-    """``data`` with its outputs taken back through ``model``'s output blocks: the signal the
-    representation produces, on which a regression of it is fitted.
+    """``data`` (as measured: raw inputs) with its outputs taken back through ``model``'s
+    output blocks: the signal the representation produces, on which a regression of it is
+    fitted.
 
-    A polynomial curve is inverted (:func:`~tendonkit.simulate.inner_outputs`).  A play's
-    input is not a function of its output; its driven signal is ``y + (x̂ - play(x̂))``, the
-    side of the gap read from the noise-free simulation ``x̂`` of the representation (as the
-    backlash effect builds it, ``plugins/effects_blocks.py``).  A clip passes what it does not
-    clip, and is left as measured.
+    The blocks are undone from the last to the first.  A polynomial curve is inverted
+    (:func:`~tendonkit.simulate.curve_inverse`).  Any other block ``B`` (a play, a clip) is not
+    invertible from its output: the signal before it is ``z + (ŝ - B(ŝ))``, ``z`` the signal
+    after it and ``ŝ`` the noise-free simulation entering it (the model's representation run
+    through the blocks before ``B``) — for a play the side of the gap in contact, as the
+    backlash effect builds its candidates (``plugins/effects_blocks.py``), for a clip the
+    excess on the samples it clips.
     """
-    plays = [b for b in model.output_blocks if b.kind == "play"]
-    sims = simulate_dataset(model.replace(output_blocks=()), data) if plays else None
+    blocks = model.output_blocks
+    if not blocks:
+        return data
     names = model.output_names
+    sims = simulate_dataset(model.replace(output_blocks=()), data)
     exps = []
-    for i, e in enumerate(data.experiments):
-        y = inner_outputs(model, e.y)
-        if sims is not None:
-            sim = np.where(np.isfinite(sims[i]), sims[i], e.y)
-            for b in plays:
-                j = names.index(b.signal)
-                x = sim[:, j]
-                y[:, j] = e.y[:, j] + (x - play_operator(x, float(b.params["width"])))
-        exps.append(dataclasses.replace(e, y=y))
+    for e, sim in zip(data.experiments, sims, strict=True):
+        s = np.where(np.isfinite(sim), sim, e.y)
+        entering = []
+        for b in blocks:
+            entering.append(s.copy())
+            j = names.index(b.signal)
+            s[:, j] = apply_block(b, s[:, j])
+        z = np.array(e.y, dtype=float)
+        for b, s_in in zip(reversed(blocks), reversed(entering), strict=True):
+            j = names.index(b.signal)
+            if b.kind == "polynomial":
+                z[:, j] = curve_inverse(b, z[:, j])
+            else:
+                z[:, j] = z[:, j] + (s_in[:, j] - apply_block(b, s_in[:, j]))
+        exps.append(dataclasses.replace(e, y=z))
     return data.with_experiments(exps)
 
 
@@ -93,8 +105,9 @@ def extend_with_terms(
     """Refit ``model`` on ``data`` with the extra regressors ``terms`` (see module docstring).
 
     Terms are written in output-equation time: they read outputs and inputs with lag >= 1.
-    Existing terms of the model are kept and refitted, and its input blocks kept (the inputs
-    are passed through them first).  For a state-space model, ``refit`` (the
+    Existing terms of the model are kept and refitted, and its blocks kept: an ARX or a sparse
+    map is regressed on the inputs passed through its input blocks and on its own outputs,
+    before its output blocks (:func:`driven_outputs`); a state space on the measured outputs.  For a state-space model, ``refit`` (the
     baseline's identifier) is run with Θ — computed from the measured outputs — as extra
     inputs, so ``A``, ``B`` and ``E`` are estimated together; without it, ``A`` and ``C`` are
     kept and ``B``, ``D``, ``E``, ``x0`` are refitted by output-error least squares.
@@ -102,13 +115,14 @@ def extend_with_terms(
     data = aligned(model, data)
     terms = tuple(terms)
     rep = model.representation
-    if model.input_blocks and isinstance(rep, ARX | SparseMap):
-        # The regressors are what the representation sees: inputs after the model's blocks
-        # (an extension of an already extended model, e.g. the next step of a diagnosis).
-        data = transform_inputs(data, model.input_blocks)
     if model.output_blocks and isinstance(rep, ARX | SparseMap):
-        # ... and outputs before its output blocks: the representation's own outputs
+        # The regressors are what the representation sees: its own outputs, before the
+        # model's output blocks (read from its simulation of the raw inputs) ...
         data = driven_outputs(model, data)
+    if model.input_blocks and isinstance(rep, ARX | SparseMap):
+        # ... and the inputs after its input blocks (an extension of an already extended
+        # model, e.g. the next step of a diagnosis).
+        data = transform_inputs(data, model.input_blocks)
     if isinstance(rep, ARX):
         new = _extend_arx(model, rep, data, terms)
     elif isinstance(rep, SparseMap):

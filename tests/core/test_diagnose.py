@@ -1482,7 +1482,9 @@ def test_terms_added_to_a_model_with_output_blocks_are_fitted_on_its_own_outputs
     ud = apply_block(delay, u) if "delay" in chain else u
     x = lfilter([0.0, 0.2], [1.0, -1.5, 0.7], ud)
     sd = x.std()
-    curve = Block("polynomial", "y", {"c0": 0.0, "c1": 1.0, "c2": 0.0, "c3": 0.3 / sd**2})
+    # a curve with an offset and a gain: the simulation that reads the play's side must start
+    # from the outputs taken back through it
+    curve = Block("polynomial", "y", {"c0": 2.0 * sd, "c1": 1.5, "c2": 0.0, "c3": 0.3 / sd**2})
     v = apply_block(curve, x) if "curve" in chain else x
     width = 0.3 * v.std()
     y = play_operator(v, width) + 0.002 * sd * rng.standard_normal(n)

@@ -268,8 +268,9 @@ def test_a_dead_zone_below_every_tension_names_no_cause():
 
 #: Plants with two hidden effects (seeds the single-effect calibration drew too): both must be
 #: named, in any order, by the sequence of causes with the refinement on: gravity with an
-#: actuation delay (G+D), tendon friction with gravity (A+G) and joint play with gravity (B+G).  Friction with a
-#: force-controller lag (A+F) is not named yet: the lag is (+34.1 points, p_adj 1e-10 on seed
+#: actuation delay (G+D), tendon friction with gravity (A+G) and joint play with gravity
+#: (B+G; on seed 2 a false friction is named first).  Friction with a force-controller lag
+#: (A+F) is not named yet: the lag is (+34.1 points, p_adj 1e-10 on seed
 #: 1, as a rate-limited lag in a loop with the joints), but behind it the friction effect gains
 #: nothing significant (+0.1; docs/diagnose.md, "Two effects at once").
 PAIRS = [

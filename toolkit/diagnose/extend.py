@@ -55,21 +55,28 @@ def driven_outputs(model: Model, data: Dataset) -> Dataset:
     fitted.
 
     The blocks are undone from the last to the first.  A polynomial curve is inverted
-    (:func:`~tendonkit.simulate.curve_inverse`).  Any other block ``B`` (a play, a clip) is not
-    invertible from its output: the signal before it is ``z + (ŝ - B(ŝ))``, ``z`` the signal
-    after it and ``ŝ`` the noise-free simulation entering it (the model's representation run
-    through the blocks before ``B``) — for a play the side of the gap in contact, as the
-    backlash effect builds its candidates (``plugins/effects_blocks.py``), for a clip the
-    excess on the samples it clips.
+    (:func:`~tendonkit.simulate.curve_inverse`).  Any other block ``B`` is undone
+    approximately: the signal before it is ``z + (ŝ - B(ŝ))``, ``z`` the signal after it and
+    ``ŝ`` the noise-free simulation entering it (the representation, started from the
+    outputs taken back through the curves, run through the blocks before ``B``) — for a play
+    the side of the gap in contact, as the backlash effect builds its candidates
+    (``plugins/effects_blocks.py``), for a clip the excess on the samples it clips.  Where
+    that simulation is not finite (a diverged model), the outputs taken back through the
+    curves stand in for it.
     """
     blocks = model.output_blocks
     if not blocks:
         return data
     names = model.output_names
-    sims = simulate_dataset(model.replace(output_blocks=()), data)
+    inner = data.with_experiments(
+        [dataclasses.replace(e, y=inner_outputs(model, e.y)) for e in data.experiments]
+    )
+    if all(b.kind == "polynomial" for b in blocks):
+        return inner  # curves only: inverted, no simulation needed
+    sims = simulate_dataset(model.replace(output_blocks=()), inner)
     exps = []
-    for e, sim in zip(data.experiments, sims, strict=True):
-        s = np.where(np.isfinite(sim), sim, e.y)
+    for e, e_in, sim in zip(data.experiments, inner.experiments, sims, strict=True):
+        s = np.where(np.isfinite(sim), sim, e_in.y)
         entering = []
         for b in blocks:
             entering.append(s.copy())
@@ -107,10 +114,11 @@ def extend_with_terms(
     Terms are written in output-equation time: they read outputs and inputs with lag >= 1.
     Existing terms of the model are kept and refitted, and its blocks kept: an ARX or a sparse
     map is regressed on the inputs passed through its input blocks and on its own outputs,
-    before its output blocks (:func:`driven_outputs`); a state space on the measured outputs.  For a state-space model, ``refit`` (the
-    baseline's identifier) is run with Θ — computed from the measured outputs — as extra
-    inputs, so ``A``, ``B`` and ``E`` are estimated together; without it, ``A`` and ``C`` are
-    kept and ``B``, ``D``, ``E``, ``x0`` are refitted by output-error least squares.
+    before its output blocks (:func:`driven_outputs`); a state space on the measured outputs.
+    For a state-space model, ``refit`` (the baseline's identifier) is run with Θ — computed
+    from the measured outputs — as extra inputs, so ``A``, ``B`` and ``E`` are estimated
+    together; without it, ``A`` and ``C`` are kept and ``B``, ``D``, ``E``, ``x0`` are
+    refitted by output-error least squares.
     """
     data = aligned(model, data)
     terms = tuple(terms)

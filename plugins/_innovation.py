@@ -37,7 +37,7 @@ from numpy.typing import NDArray
 
 from tendonkit.errors import DataError, SimulationError
 from tendonkit.plugins import _modal
-from tendonkit.predict import fitted_kalman_gain, kalman_gain
+from tendonkit.predict import fitted_kalman_gain, k_step_states, kalman_gain
 from tendonkit.schema import StateSpace
 from tendonkit.simulate import ss_response
 
@@ -70,13 +70,7 @@ def predictions(
     # the predictor's states: a state space driven by [Δu, Δy] whose outputs are its states
     X = ss_response(AK, np.hstack([BK, K]), np.eye(n), np.zeros((n, nu + K.shape[1])),
                     np.hstack([du, dy]), x0)  # fmt: skip
-    # X[t] = x̂(t | t-1); step j: x̂(t | t-j-1) = A x̂(t-1 | t-j-1) + B Δu[t-1]
-    for _ in range(horizon - 1):
-        shifted = np.empty_like(X)
-        shifted[0] = x0
-        shifted[1:] = X[:-1] @ A.T + du[:-1] @ B.T
-        X = shifted
-    return np.asarray(X @ C.T + du @ D.T)
+    return np.asarray(k_step_states(X, A, B, du, horizon) @ C.T + du @ D.T)
 
 
 def initial_gains(
@@ -169,9 +163,6 @@ def refine(
     DataError
         When no start makes the predictor stable.
     """
-    # lazy: heavy (scipy.optimize)
-    from scipy.optimize import least_squares
-
     problem = Problem(layout, exps, sy, horizon)
     lo, hi = _modal.bounds(layout, _modal.STABLE_RADIUS)
     theta = np.clip(theta, lo, hi)
@@ -186,22 +177,9 @@ def refine(
             "simulation-error model (its (A, C) may not be detectable); use focus='simulation'."
         )
     free = np.full(K.size, np.inf)
-    with np.errstate(all="ignore"):
-        sol = least_squares(
-            problem.residuals,
-            z0,
-            jac="2-point",
-            bounds=(np.concatenate([lo, -free]), np.concatenate([hi, free])),
-            method="trf",
-            x_scale="jac",
-            max_nfev=max_nfev,
-            ftol=tol,
-            xtol=tol,
-            gtol=tol,
-        )
-    n_res = problem.n_res
-    before = float(np.sqrt(r0 @ r0 / n_res))
-    after = float(np.sqrt(sol.fun @ sol.fun / n_res))
+    bounds = (np.concatenate([lo, -free]), np.concatenate([hi, free]))
+    sol = _modal.trust_region(problem.residuals, z0, "2-point", bounds, max_nfev, tol)
+    before, after = _modal.rms(r0), _modal.rms(sol.fun)
     if not np.isfinite(after) or after > before:
         return Refined(theta, K, before, before, int(sol.nfev), None, r0)
     th, k = problem.split(np.asarray(sol.x))

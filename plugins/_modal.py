@@ -388,31 +388,43 @@ def refine(
     Returns ``(theta, rms before, rms after, evaluations)``; ``theta`` is the start when the
     refinement does not lower the error.  Poles stay within ``radius``.
     """
-    # lazy: heavy (scipy.optimize)
-    from scipy.optimize import least_squares
-
     lo, hi = bounds(layout, radius)
     theta = np.clip(theta, lo, hi)
     r0 = residuals(layout, theta, exps, sy)
-    n_res = r0.size
-    with np.errstate(all="ignore"):
-        sol = least_squares(
-            lambda th: residuals(layout, th, exps, sy),
-            theta,
-            jac=lambda th: residual_jacobian(layout, th, exps, sy),
-            bounds=(lo, hi),
-            method="trf",
-            x_scale="jac",
-            max_nfev=max_nfev,
-            ftol=tol,
-            xtol=tol,
-            gtol=tol,
-        )
-    before = float(np.sqrt(r0 @ r0 / n_res))
-    after = float(np.sqrt(sol.fun @ sol.fun / n_res))
+    sol = trust_region(
+        lambda th: residuals(layout, th, exps, sy),
+        theta,
+        lambda th: residual_jacobian(layout, th, exps, sy),
+        (lo, hi),
+        max_nfev,
+        tol,
+    )
+    before, after = rms(r0), rms(sol.fun)
     if not np.isfinite(after) or after > before:
         return theta, before, before, int(sol.nfev)
     return np.asarray(sol.x), before, after, int(sol.nfev)
+
+
+def rms(r: FloatArray) -> float:
+    """Root mean square of the residuals ``r``."""
+    return float(np.sqrt(r @ r / r.size))
+
+
+def trust_region(
+    fun: Any, x0: FloatArray, jac: Any, bounds: tuple[FloatArray, FloatArray], max_nfev: int,
+    tol: float,
+) -> Any:  # fmt: skip
+    """scipy's trust-region-reflective least squares as pem's refinements run it: scaled by
+    the Jacobian, one tolerance for cost, step and gradient, floating-point warnings off (a
+    step outside the domain returns large residuals, not an error)."""
+    # lazy: heavy (scipy.optimize)
+    from scipy.optimize import least_squares
+
+    with np.errstate(all="ignore"):
+        return least_squares(
+            fun, x0, jac=jac, bounds=bounds, method="trf", x_scale="jac", max_nfev=max_nfev,
+            ftol=tol, xtol=tol, gtol=tol,
+        )  # fmt: skip
 
 
 # -- parameter covariance ---------------------------------------------------------------------

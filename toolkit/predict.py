@@ -120,18 +120,27 @@ def _predict_ss_terms(
 
 
 def _predict_ss(rep: StateSpace, u: FloatArray, y: FloatArray, k: int) -> FloatArray:
-    A, B, C, D = rep.A, rep.B, rep.C, rep.D
     K = rep.K if rep.K is not None else fitted_kalman_gain(rep, u, y)
-    N = u.shape[0]
-    Xp = _one_step_states(rep, K, u, y)
-    # x̂(t | t-k): start at x̂(t-k+1 | t-k) and propagate k-1 steps with known inputs.
+    X = k_step_states(_one_step_states(rep, K, u, y)[:-1], rep.A, rep.B, u, k)
     out = y.copy()
-    for t in range(k - 1, N):
-        x = Xp[t - k + 1]
-        for j in range(t - k + 1, t):
-            x = A @ x + B @ u[j]
-        out[t] = C @ x + D @ u[t]
+    out[k - 1 :] = X[k - 1 :] @ rep.C.T + u[k - 1 :] @ rep.D.T
     return out
+
+
+def k_step_states(
+    X1: FloatArray, A: FloatArray, B: FloatArray, u: FloatArray, k: int
+) -> FloatArray:
+    """``x̂(t | t-k)`` for every ``t`` from the one-step predictor's states ``X1[t] = x̂(t | t-1)``:
+    each of the ``k - 1`` passes propagates every state one step with the known inputs,
+    ``x̂(t | t-j-1) = A x̂(t-1 | t-j-1) + B u[t-1]`` (vectorised over ``t``).  Before
+    ``t = k - 1`` the states are those propagated from ``X1[0]``, as far as the data go."""
+    X = X1
+    for _ in range(k - 1):
+        shifted = np.empty_like(X)
+        shifted[0] = X1[0]
+        shifted[1:] = X[:-1] @ A.T + u[:-1] @ B.T
+        X = shifted
+    return X
 
 
 def _one_step_states(rep: StateSpace, K: FloatArray, u: FloatArray, y: FloatArray) -> FloatArray:

@@ -401,6 +401,36 @@ def play_loop(s, width, start):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
+def follow_index(s, width, rate):  # pragma: no cover - numba
+    """For each sample of a play (``rate`` < 0: half-width ``width``, from ``s[0]``, as
+    :func:`play_loop`) or of a rate limit (``rate`` ≥ 0, as :func:`rate_loop`): the last sample
+    at which its output followed ``s`` — pushed past the gap, or within the rate.  Where it
+    holds (inside the gap) or slews (at the rate) the output moves with none of the later
+    samples of ``s``, so its derivative with respect to anything that moves ``s`` is
+    ``ds[index]``: how ``output_error.refine``'s exact Jacobian passes these blocks.
+    """
+    out = np.empty(s.shape[0], dtype=np.int64)
+    v = s[0]
+    last = 0
+    for k in range(s.shape[0]):
+        x = s[k]
+        if rate < 0.0:
+            if x - v > width:
+                v = x - width
+                last = k
+            elif x - v < -width:
+                v = x + width
+                last = k
+        else:
+            d = x - v
+            if -rate <= d <= rate:
+                last = k
+            v += min(max(d, -rate), rate)
+        out[k] = last
+    return out
+
+
+@njit(cache=True, nogil=True)
 def rate_loop(s, rate):  # pragma: no cover - numba
     """Follow ``s`` with at most ``rate`` change per sample, from ``s[0]``."""
     out = np.empty_like(s)

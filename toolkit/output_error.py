@@ -7,7 +7,8 @@ approximation (Ljung, *System Identification*, 2nd ed., §7.3).  :func:`refine` 
 every continuous parameter of a model by its simulation error, starting from the model as
 given, by scipy's trust-region-reflective least squares (Jacobian-scaled, through the compiled
 simulation; the Jacobian of an ARX's coefficients exact by forward sensitivities,
-:func:`tendonkit._kernel.arx_sensitivity`, the trust-region subproblem from a tall QR:
+:func:`tendonkit._kernel.arx_sensitivity`, passed through its output blocks by
+:func:`block_tangent`, the trust-region subproblem from a tall QR:
 :func:`_tall_trust_region`; everything else by forward differences and
 :func:`scipy.optimize.least_squares`):
 
@@ -38,7 +39,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from ._kernel import arx_sensitivity
+from ._kernel import arx_sensitivity, follow_index
 from ._simulate_arx import arx_max_lag
 from .dataset import Dataset
 from .errors import SchemaError
@@ -48,6 +49,7 @@ from .schema import ARX, Block, Model, SparseMap, StateSpace
 from .simulate import (
     _apply_blocks,
     aligned,
+    apply_block,
     curve_slope,
     initial_span,
     inner_outputs,
@@ -286,10 +288,11 @@ def refine(
     blocks : bool
         Also refine the blocks' parameters; ``False`` keeps them as the caller chose them.
     analytic : bool
-        For an ARX model (memoryless terms, no output blocks, no clipped-state terms, initial
-        state from the data): the Jacobian of the coefficients by forward sensitivities
-        (:func:`tendonkit._kernel.arx_sensitivity`, exact, one pass), the blocks' parameters by forward
-        differences.  ``False``, and every other model: forward differences throughout (one
+        For an ARX model (memoryless terms, no clipped-state terms, initial state from the
+        data): the Jacobian of the coefficients by forward sensitivities
+        (:func:`tendonkit._kernel.arx_sensitivity`, exact, one pass) passed through the output
+        blocks (:func:`block_tangent`), an output curve's coefficients exactly, the other
+        blocks' parameters by forward differences.  ``False``, and every other model: forward differences throughout (one
         simulation per parameter).
 
     Returns
@@ -504,6 +507,35 @@ def _tr_step(
     return p * (Delta / float(np.linalg.norm(p))), alpha
 
 
+def block_tangent(block: Block, x: FloatArray, T: FloatArray) -> FloatArray:
+    """How a block passes derivatives: ``T`` (N, P), the derivatives of its input signal
+    ``x`` (N,) with respect to P parameters, mapped to those of its output (the block's own
+    parameters held).
+
+    A curve scales them by its slope, a clip and a dead zone pass them where the signal is
+    inside the limits and outside the zone, a play and a rate limit pass those of the sample
+    their output last followed (:func:`tendonkit._kernel.follow_index`), and the linear blocks
+    (delays, lags, sections) filter them as they filter the signal.  At a kink (the signal
+    exactly at a limit, a play exactly at its gap's edge) the one-sided derivative.
+    """
+    p = block.params
+    if block.kind == "polynomial":
+        return np.asarray(curve_slope(p, x))[:, None] * T
+    if block.kind == "saturation":
+        return ((x > p["lower"]) & (x < p["upper"]))[:, None] * T
+    if block.kind == "dead_zone":
+        return (np.abs(x - p["center"]) > p["threshold"])[:, None] * T
+    if block.kind in ("play", "rate_limit"):
+        if not x.shape[0]:
+            return T.copy()
+        width, rate = (p["width"], -1.0) if block.kind == "play" else (0.0, p["rate"])
+        return T[follow_index(np.ascontiguousarray(x, dtype=float), float(width), float(rate))]
+    # delay, first_order_lag, second_order_section: linear in the signal
+    if not T.shape[1]:
+        return T.copy()
+    return np.column_stack([apply_block(block, T[:, q]) for q in range(T.shape[1])])
+
+
 def exact_jacobian(model: Model) -> bool:
     """Whether :func:`refine` computes ``model``'s Jacobian by forward sensitivities (one pass,
     whatever the number of coefficients) rather than by a simulation per parameter."""
@@ -515,9 +547,7 @@ def _arx_sensitivity_applies(model: Model, initial: str) -> bool:
     return (
         isinstance(rep, ARX)
         and initial == "estimate"
-        # a curve after the model (Wiener): chain rule through the curve, one per output
-        and (model.is_wiener or not model.output_blocks)
-        and len({b.signal for b in model.output_blocks}) == len(model.output_blocks)
+        # blocks after the model: the chain rule through each (:func:`block_tangent`)
         and not any(t.stateful for t in rep.terms)
         and not tied_terms(rep, model.output_names)
     )
@@ -588,19 +618,28 @@ def _arx_jacobian(
         return Phi, J
 
     # The parameter vector after the coefficients (``_codec``): the input blocks' free
-    # parameters, then the output curves' c0..c3 (in the vector only when blocks are refined).
-    n_in = sum(
-        1
-        for b in model.input_blocks
-        for name in b.params
-        if (b.kind, name) not in FIXED_BLOCK_PARAMS and abs(b.params[name]) < 1e299
-    )
-    n_curve = 4 * len(model.output_blocks)
+    # parameters, then the output blocks' (both in the vector only when blocks are refined).
+    # A curve's c0..c3 have exact columns (``d f / d c_i = x^i``), every other block parameter
+    # forward differences.
+    def free(b: Block) -> list[str]:
+        return [
+            name
+            for name in sorted(b.params)
+            if (b.kind, name) not in FIXED_BLOCK_PARAMS and abs(b.params[name]) < 1e299
+        ]
+
+    n_in = sum(len(free(b)) for b in model.input_blocks)
+    curve_at: dict[int, int] = {}  # output block -> its c0's place among the blocks' parameters
+    n_out = 0
+    for k, b in enumerate(model.output_blocks):
+        if b.kind == "polynomial":
+            curve_at[k] = n_out
+        n_out += len(free(b))
+    exact_out = sorted(q for c in curve_at.values() for q in range(c, c + 4))
 
     def jac(theta: FloatArray) -> FloatArray:
         m = decode(theta)
-        # the curves' coefficients are in the vector only when the blocks are refined
-        n_exact_curve = n_curve if theta.size == n_lin + n_in + n_curve else 0
+        with_blocks = theta.size == n_lin + n_in + n_out  # blocks=True
         rep = m.representation
         assert isinstance(rep, ARX)
         sims, r0 = run(theta)
@@ -609,9 +648,9 @@ def _arx_jacobian(
         coef = np.zeros((nt, ny)) if rep.term_coefficients is None else rep.term_coefficients
         A = np.array(rep.A).reshape(len(rep.A), ny, ny) if rep.A else np.zeros((0, ny, ny))
         linear: list[FloatArray] = []
-        curve_cols: list[FloatArray] = []
-        curves = [(outputs.index(b.signal), b) for b in m.output_blocks]
-        inner = m.replace(output_blocks=()) if curves else m
+        block_cols: list[FloatArray] = []
+        chain = [(outputs.index(b.signal), b) for b in m.output_blocks]
+        inner = m.replace(output_blocks=()) if chain else m
         with np.errstate(all="ignore"):
             for e, ys in zip(data.experiments, sims, strict=True):
                 N = e.u.shape[0]
@@ -619,7 +658,7 @@ def _arx_jacobian(
                 ub = _apply_blocks(m.input_blocks, m.input_names, e.u, True)
                 Up = np.vstack([np.repeat(ub[:1], L, axis=0), ub])
                 y_meas = e.y
-                if curves:  # the inner signal, started from the outputs taken back
+                if chain:  # the inner signal, started from the outputs taken back
                     y_meas = inner_outputs(m, e.y, initial_span(m))
                     ys = simulate(inner, e.u, y=y_meas, initial="estimate")
                 Yp = np.vstack([np.repeat(y_meas[:1], L, axis=0), ys])
@@ -629,18 +668,26 @@ def _arx_jacobian(
                     Phi, A, np.ascontiguousarray(coef, dtype=float), J, qcol, qlag, start, L
                 )
                 Sx = S[L:]
-                powers = np.zeros((N, ny, n_curve))
-                for k, (j, b) in enumerate(curves):  # d f(x) = f'(x) dx, d f / d c_i = x^i
-                    Sx[:, j, :] *= curve_slope(b.params, ys[:, j])[:, None]
-                    powers[:, j, 4 * k : 4 * k + 4] = np.vander(ys[:, j], 4, increasing=True)
+                Bx = np.zeros((N, ny, n_out if with_blocks else 0))
+                signal = np.array(ys, dtype=float)
+                for k, (j, b) in enumerate(chain):  # each block's tangent, in order
+                    x = signal[:, j]
+                    Sx[:, j, :] = block_tangent(b, x, Sx[:, j, :])
+                    if with_blocks:
+                        Bx[:, j, :] = block_tangent(b, x, Bx[:, j, :])
+                        if k in curve_at:  # d f / d c_i = x^i
+                            Bx[:, j, curve_at[k] : curve_at[k] + 4] = np.vander(x, 4, True)
+                    signal[:, j] = apply_block(b, x)
                 linear.append((-Sx / scale[None, :, None]).reshape(N * ny, -1))
-                curve_cols.append((-powers / scale[None, :, None]).reshape(N * ny, -1))
+                block_cols.append((-Bx / scale[None, :, None]).reshape(N * ny, -1))
         out = np.zeros((r0.size, theta.size))
         out[:, :n_lin] = np.vstack(linear)
-        if n_exact_curve:  # the curves' coefficients come last (``_codec``)
-            out[:, theta.size - n_exact_curve :] = np.vstack(curve_cols)
-        # the other blocks' parameters: forward differences
-        for p in range(n_lin, theta.size - n_exact_curve):
+        fd = list(range(n_lin, theta.size))
+        if with_blocks and exact_out:  # the output blocks' parameters come last (``_codec``)
+            first = n_lin + n_in
+            out[:, [first + q for q in exact_out]] = np.vstack(block_cols)[:, exact_out]
+            fd = [p for p in fd if p - first not in exact_out]
+        for p in fd:  # the other blocks' parameters: forward differences
             h = 1.4901161193847656e-08 * max(1.0, abs(float(theta[p])))
             step = theta.copy()
             step[p] += h

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 import tendonkit as tk
 from tendonkit.compare import compare
@@ -111,6 +112,67 @@ def test_the_arx_sensitivity_jacobian_equals_finite_differences() -> None:
             assert np.abs(exact - fd).max() <= 1e-5 * np.abs(fd).max(), (kind, seed)
             checked += 1
     assert checked >= 20
+
+
+@pytest.mark.parametrize(
+    "blocks",
+    [
+        [Block("play", "y1", {"width": 0.15})],
+        [Block("saturation", "y1", {"lower": -0.8, "upper": 0.6})],
+        [Block("dead_zone", "y2", {"center": 0.1, "threshold": 0.2})],
+        [Block("rate_limit", "y2", {"rate": 0.05})],
+        [Block("delay", "y1", {"samples": 2.4}), Block("first_order_lag", "y2", {"pole": 0.6})],
+        [Block("second_order_section", "y1", {"b1": 0.3, "b2": 0.1, "a1": -0.5, "a2": 0.2})],
+        # a curve, then a play on the same output: the curve's exact columns pass the play
+        [
+            Block("polynomial", "y1", {"c0": 0.05, "c1": 1.0, "c2": 0.1, "c3": -0.05}),
+            Block("play", "y1", {"width": 0.1}),
+            Block("play", "y2", {"width": 0.05}),
+        ],
+    ],
+    ids=["play", "clip", "dead-zone", "rate", "delay+lag", "section", "curve+play"],
+)
+def test_the_exact_jacobian_passes_every_output_block(blocks: list[Block]) -> None:
+    """A two-output ARX with memoryless terms behind output blocks of every kind: the exact
+    Jacobian (forward sensitivities passed through each block's tangent) equals central
+    differences in every column, the blocks' own parameters included (forward differences,
+    or exact for a curve), away from the blocks' kinks."""
+    from scipy.optimize._numdiff import approx_derivative
+
+    from tendonkit.output_error import _arx_jacobian, _codec, exact_jacobian
+    from tendonkit.schema import ARX
+
+    rep = ARX(
+        A=(np.array([[-1.2, 0.1], [0.05, -0.9]]), np.array([[0.45, 0.0], [0.0, 0.2]])),
+        B=(np.array([[0.5], [0.3]]), np.array([[0.2], [-0.1]])),
+        nk=(1,),
+        terms=(Term((Factor("u", fn="tanh", lag=1),)), Term((Factor("y1", power=3, lag=1),))),
+        term_coefficients=np.array([[0.2, -0.1], [-0.05, 0.02]]),
+    )
+    m = Model("m", 0.01, (Signal("u"),), (Signal("y1"), Signal("y2")), rep,
+              output_blocks=tuple(blocks))  # fmt: skip
+    assert exact_jacobian(m)
+    rng = np.random.default_rng(5)
+    u = np.repeat(rng.normal(size=(100, 1)), 4, axis=0)
+    y = tk.simulate(m, u, initial="zero") + rng.normal(0, 0.02, (400, 2))
+    data = tk.Dataset.from_arrays(u, y, 0.01, ["u"], ["y1", "y2"])
+    theta0, decode = _codec(m, True)
+    scale = np.std(y, axis=0)
+
+    def run(th):  # type: ignore[no-untyped-def]
+        sim = tk.simulate(decode(th), u, y=y, initial="estimate")
+        return [sim], ((y - sim) / scale).ravel()
+
+    exact = _arx_jacobian(m, data, decode, run, scale)(theta0)
+    fd = approx_derivative(lambda th: run(th)[1], theta0, method="3-point", rel_step=1e-7)
+    n_coef = 4 * 2 + 2 * 2 + 2 * 2  # A (2 lags of 2x2), B (2 of 2x1), the terms (2x2)
+    assert np.abs(exact - fd)[:, :n_coef].max() <= 1e-5 * np.abs(fd).max()
+    # the blocks' parameters; a curve's exact columns leave out how the start (the outputs
+    # taken back through it) moves with it, which fades within the first samples
+    late = slice(2 * 20, None)  # rows from sample 20 on (two outputs per sample)
+    tol = 1e-3 * max(np.abs(fd[:, n_coef:]).max(), 1.0)
+    assert np.abs(exact - fd)[late, n_coef:].max() <= tol
+    assert np.abs(exact[:, :n_coef]).max() > 0.1
 
 
 def test_the_tall_trust_region_takes_scipys_steps() -> None:

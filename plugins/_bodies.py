@@ -38,7 +38,7 @@ import numpy as np
 from tendonkit.dataset import Dataset
 from tendonkit.diagnose import Context, Extension
 from tendonkit.plugins._arx_structure import PARSIMONY
-from tendonkit.schema import Model
+from tendonkit.schema import ARX, Model
 from tendonkit.terms import Factor, Term
 
 
@@ -78,6 +78,16 @@ def velocity(y: np.ndarray, m: int) -> np.ndarray:
     v = np.zeros_like(y)
     v[m:] = y[m:] - y[:-m]
     return v
+
+
+def input_lags(model: Model, m: int) -> list[int]:
+    """The lags at which ``model`` reads input ``m`` (ARX: ``nk .. nk + nb - 1``, at least 1;
+    any other representation: 1 to 4) — where a curve on that input's path is put."""
+    rep = model.representation
+    if isinstance(rep, ARX) and len(rep.B) and len(rep.nk) > m:
+        first = max(int(rep.nk[m]), 1)
+        return list(range(first, int(rep.nk[m]) + len(rep.B)))
+    return [1, 2, 3, 4]
 
 
 def both_signs(x: np.ndarray) -> bool:

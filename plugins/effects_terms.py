@@ -471,15 +471,6 @@ class Gravity(_TermEffect):
         }
 
 
-def _input_lags(model: Model, m: int) -> list[int]:
-    """The lags at which the model reads input ``m`` (ARX: ``nk .. nk + nb - 1``, at least 1)."""
-    rep = model.representation
-    if isinstance(rep, ARX) and len(rep.B) and len(rep.nk) > m:
-        first = max(int(rep.nk[m]), 1)
-        return list(range(first, int(rep.nk[m]) + len(rep.B)))
-    return [1, 2, 3, 4]
-
-
 class StaticNonlinearity(_TermEffect):
     """A memoryless nonlinearity on a signal path: Hammerstein, Wiener, Wiener–Hammerstein."""
 
@@ -513,7 +504,7 @@ class StaticNonlinearity(_TermEffect):
                 for lag in lags[j]
             ]
 
-        in_lags = [_input_lags(base, m) for m in range(len(ctx.train.inputs))]
+        in_lags = [_bodies.input_lags(base, m) for m in range(len(ctx.train.inputs))]
         hammer = powers(ctx.train.inputs, in_lags, mu_u, sd_u, (2, 3))
         absu = [
             Term((Factor(name, fn="abs", lag=lag, scale=float(1 / sd_u[j])),))
@@ -626,7 +617,7 @@ class StaticNonlinearity(_TermEffect):
         name = base.input_names[0]
         inner = transform_inputs(ctx.train, blocks).u[:, 0]
         mu, sd = float(inner.mean()), float(inner.std()) or 1.0
-        lags = _input_lags(base, 0)
+        lags = _bodies.input_lags(base, 0)
         n = sum(e.n_samples for e in ctx.train.experiments)
         n_linear = free_parameters(base, blocks=False)
         linear = refit_with_input_blocks(ctx.refit, blocks)

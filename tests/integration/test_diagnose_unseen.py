@@ -354,6 +354,24 @@ def test_a_shape_contest_compares_the_models_handed_on(effect, seed, special, as
         assert "static_nonlinearity as tested: its refined model simulated" in notes
 
 
+def test_a_pump_that_starts_at_a_voltage_is_a_dead_zone():
+    """The fast tanks whose pump does nothing below 4-4.6 V and pumps in full above
+    (``bench_diagnose_chain.py --plant tanks``, seed 822): a dead zone whose output jumps at
+    the threshold.  No continuous zone has the jump, and a clip of the pump (+6.3 points) was
+    named before the gate candidates; the gate is named, with its threshold near the truth."""
+    bench = _tank_bench()
+    p = bench.draw("dead_zone", 822, bench.TANK_RANGES)
+    train = bench.tanks("dead_zone", p, 822, (2.0, 3.0))
+    valid = bench.tanks("dead_zone", p, 1322, (2.0, 3.0))
+    d = diagnose(train, valid, max_causes=1)
+    top = ", ".join(f"{f.effect} {f.gain:+.2f} (p_adj {f.p_adjusted:.1e})" for f in d.findings[:3])
+    assert d.cause == "dead_zone", top
+    assert d.best.params["structure"] == "gate"
+    assert abs(d.best.params["threshold"][0] - p["th"]) < 0.3, (d.best.params, p)
+    gains = {f.effect: f.gain for f in d.findings}
+    assert gains["dead_zone"] > gains["saturation"] + 3.0
+
+
 def test_a_speed_limit_inside_a_force_loop_is_named_in_its_loop():
     """A series-elastic actuator whose motor's speed is limited (``bench_diagnose_chain.py
     --plant sea``, seed 901): the limit binds on the force loop's state, not on the command,

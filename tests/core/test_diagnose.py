@@ -1571,3 +1571,30 @@ def test_the_loop_of_an_actuator_is_scaled_by_static_gains_and_steps_that_move()
     # f2 steps by 1, 1 and 2 in turn: its median nonzero step is 1
     np.testing.assert_array_equal(_step_sizes(steps, 0.5), [1.0, 1.0])
     np.testing.assert_array_equal(_step_sizes(steps, 0.9), [1.0, 2.0])
+
+
+def test_a_gate_on_a_negative_held_input_is_named_between_its_levels():
+    """A valve driven by negative held levels (-1 … -5) that does nothing above -2.2 and acts
+    whole below: the dead zone's gate is tried on the input's own side and its threshold put
+    between two levels (a quantile of a held input is one of its levels, where ``sign(0)``
+    would half-gate every sample at it)."""
+    from tendonkit.diagnose import diagnose
+
+    def data(seed: int) -> Dataset:
+        rng = np.random.default_rng(seed)
+        levels = rng.choice([-1.0, -1.5, -2.0, -2.5, -3.0, -3.5, -4.0, -5.0], size=150)
+        u = np.repeat(levels, 20)
+        v = np.where(u < -2.2, u, 0.0)
+        y = np.zeros_like(u)
+        for k in range(2, len(u)):
+            y[k] = 1.5 * y[k - 1] - 0.6 * y[k - 2] + 0.1 * v[k - 1]
+        y = y + 0.01 * y.std() * rng.standard_normal(len(u))
+        return Dataset.from_arrays(u[:, None], y[:, None], 0.1, ["valve"], ["flow"])
+
+    d = diagnose(data(1), data(2), max_causes=1)
+    top = ", ".join(f"{f.effect} {f.gain:+.2f} (p_adj {f.p_adjusted:.1e})" for f in d.findings[:3])
+    assert d.cause == "dead_zone", top
+    assert d.best.params["structure"] == "gate"
+    (th,) = d.best.params["threshold"]
+    assert 2.0 < th < 2.5
+    assert d.best.gain > 20.0

@@ -251,11 +251,16 @@ def test_wiener_hammerstein_curve_is_found_between_two_filters():
     one split off the baseline's own poles and zeros as ``second_order_section`` input blocks —
     and the extended model, refined by simulation error with the filter, meets issue 18's
     target on the official test record: <= 5 mV (the linear baseline 43.9 mV; published
-    block-structured 0.28 mV, dynoNet 1.2 mV)."""
+    block-structured 0.28 mV, dynoNet 1.2 mV).
+
+    At most two causes: at default options the sequence names the curve and a delay and its
+    third step names nothing (``benchmarks/bench_real.py --diagnose``: the same two causes and
+    4.343 mV), and that step took 18 s of this test's 62 s on 75 000 samples; the stop
+    itself is tested on every other sequence of the suite."""
     bench = _bench()
     _, train, tests = next(c for c in _raw_cases() if c[0] == "Wiener-Hammerstein")
     fit_part, check = bench.split_training(train)
-    d = diagnose(fit_part, check)
+    d = diagnose(fit_part, check, max_causes=2)
     top = ", ".join(f"{f.effect} {f.gain:+.2f} (p_adj {f.p_adjusted:.1e})" for f in d.findings[:3])
     _, test, init = tests[0]
     base, ext = (bench.rmse(m, test, init) for m in (d.baseline, d.extended))

@@ -81,8 +81,9 @@ def velocity(y: np.ndarray, m: int) -> np.ndarray:
 
 
 def input_lags(model: Model, m: int) -> list[int]:
-    """The lags at which ``model`` reads input ``m`` (ARX: ``nk .. nk + nb - 1``, at least 1;
-    any other representation: 1 to 4) — where a curve on that input's path is put."""
+    """The lags at which ``model`` reads input ``m`` (ARX: ``nk .. nk + nb - 1`` from lag 1 on,
+    where terms can read it — none when ``nk = 0`` and ``nb = 1``; any other representation:
+    1 to 4) — where a curve on that input's path is put."""
     rep = model.representation
     if isinstance(rep, ARX) and len(rep.B) and len(rep.nk) > m:
         first = max(int(rep.nk[m]), 1)

@@ -70,11 +70,12 @@ def _held_out_better(
 
 
 def _between_values(a: np.ndarray, t: float) -> float:
-    """``t``, or half-way to the next larger value of ``a`` where ``t`` is one of them."""
+    """``t``, or half-way to the next larger value of ``a`` where ``t`` is one of them (0.0
+    where none is larger: no threshold leaves samples on both sides there)."""
     if not np.any(a == t):
         return t
     above = a[a > t]
-    return 0.5 * (t + float(above.min())) if above.size else t
+    return 0.5 * (t + float(above.min())) if above.size else 0.0
 
 
 def _single_inputs(
@@ -236,15 +237,17 @@ class DeadZone:
         coarse = ctx.select(
             c for q in self.quantiles for k in kinds if (c := candidate(q, k)) is not None
         )
-        if coarse[1] is None:
-            return None
-        q0, k0 = coarse[0]["quantile"], coarse[0]["common"]
-        fine = [candidate(q0 * 2.0**e, k0) for e in self.refine if q0 * 2.0**e < 0.5]
-        best = ctx.select([c for c in fine if c is not None])
-        params, model, score = coarse[:3] if best[2] <= coarse[2] else best[:3]
-        gates = self._shaped(ctx, "gate")
-        gate = ctx.select(gates)
-        if gate[1] is not None and gate[2] > score:
+        params, model, score = coarse[:3]
+        if model is not None:
+            q0, k0 = params["quantile"], params["common"]
+            fine = [candidate(q0 * 2.0**e, k0) for e in self.refine if q0 * 2.0**e < 0.5]
+            best = ctx.select([c for c in fine if c is not None])
+            if best[2] > score:
+                params, model, score = best[:3]
+        gate = ctx.select(self._shaped(ctx, "gate"))
+        if gate[1] is not None and model is None:  # no zone could be placed: the gate alone
+            params, model, score = gate[:3]
+        elif gate[1] is not None and gate[2] > score:
             # The gate's terms have free coefficients at every lag, which fit the training
             # data better whatever the shape: its shape must beat a zone's written the same
             # way, on held-out blocks of the training data.
@@ -266,10 +269,12 @@ class DeadZone:
         voltage, a valve that opens at a pressure), as ``u·sign(u - t)`` (``u·[u < -t]`` and
         ``u·sign(u + t)`` for a negative input); ``"zone"`` the continuous zone
         ``sign(u)·max(|u| - t, 0)``, the gate's rival written the same way.  The thresholds at
-        :attr:`quantiles` of the input on its side, moved half-way to the next larger value
-        where the quantile is a value the input takes (a held or quantised input: ``sign(0)``
-        would half-gate every sample at it).  Terms read lags >= 1, so an input read at lag 0
-        (``nk = 0``) is gated from lag 1 on only.
+        :attr:`quantiles` of the input's samples on its side (the side most samples are on; a
+        pump off at 0 V for a while is not below its start), moved half-way to the next
+        larger value where the quantile is a value the input takes (a held or quantised
+        input: ``sign(0)`` would half-gate every sample at it); ``threshold`` lists them per
+        input, signed (0.0: not gated).  Terms read lags >= 1: an input read at lag 0
+        (``nk = 0``) is gated from lag 1 on only, not at all when that is its only lag.
 
         A gate's output jumps at the threshold, which no continuous zone followed by the
         model's offset has: on two tanks whose pump starts at 4-4.6 V (``bench_diagnose_chain.py
@@ -280,27 +285,28 @@ class DeadZone:
         the zone block's (and its gates cost a diagnosis of Silverbox 1.8 s of 11 for nothing).
         """
         u = ctx.train.u
-        out = []
+        out, seen = [], set()
         for q in self.quantiles:
             terms: list[Term] = []
             ths = []
             for m, n in enumerate(ctx.train.inputs):
-                if _bodies.both_signs(u[:, m]):
+                lags = _bodies.input_lags(ctx.baseline, m)
+                side = 1.0 if np.mean(u[:, m] > 0) >= np.mean(u[:, m] < 0) else -1.0
+                a = side * u[:, m]
+                a = a[a > 0]  # on its side: a pump off at 0 V is not below its start
+                th = _between_values(a, float(np.quantile(a, q))) if a.size else 0.0
+                if _bodies.both_signs(u[:, m]) or not lags or not th > 0:
                     ths.append(0.0)
                     continue
-                side = 1.0 if np.median(u[:, m]) >= 0 else -1.0
-                a = side * u[:, m]
-                th = _between_values(a, float(np.quantile(a, q)))
-                ths.append(th if th > 0 else 0.0)
-                if not th > 0:
-                    continue
-                for lag in _bodies.input_lags(ctx.baseline, m):
+                ths.append(side * th)
+                for lag in lags:
                     if shape == "zone":
                         terms.append(Term((Factor(n, fn="dead_zone", lag=lag, param=th),)))
                         continue
                     gate = Factor(n, fn="sign", lag=lag, offset=side * th)
                     terms.append(Term((Factor(n, lag=lag), gate)))
-            if terms:
+            if terms and tuple(ths) not in seen:
+                seen.add(tuple(ths))
                 params = {"quantile": q, "structure": shape, "threshold": ths}
                 out.append((params, ctx.with_terms(terms)))
         return out

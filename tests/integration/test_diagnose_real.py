@@ -245,7 +245,8 @@ def test_cascaded_tanks_default_options_see_the_overflow():
 
 
 def test_wiener_hammerstein_curve_is_found_between_two_filters():
-    """Default options on the Wiener–Hammerstein benchmark, the diagnosis inside the training
+    """Default options but two causes at most (below) on the Wiener–Hammerstein benchmark, the
+    diagnosis inside the training
     record (bench_real's split: 75 000 samples to fit, 25 000 to check): the circuit's diode
     curve is named ``static_nonlinearity`` with the curve *between* two filters — the first
     one split off the baseline's own poles and zeros as ``second_order_section`` input blocks —
@@ -267,6 +268,7 @@ def test_wiener_hammerstein_curve_is_found_between_two_filters():
     print(f"\nWiener-Hammerstein (inside training): causes {d.causes}; {top}; test RMSE "
           f"{base * 1e3:.3g} -> {ext * 1e3:.3g} mV")  # fmt: skip
     assert d.cause == "static_nonlinearity", top
+    assert d.causes == ("static_nonlinearity", "input_delay"), d.causes
     assert d.best is not None and d.best.params["structure"] == "Wiener-Hammerstein"
     assert "between two filters" in d.best.params["curve"]
     assert "second_order_section" in [b.kind for b in d.extended.input_blocks]

@@ -175,6 +175,17 @@ def _held_out(options: Any, folds: list[tuple[Dataset, list[Experiment]]], windo
     return held_out_error(build, folds, window)
 
 
+def held_out_or_inf(
+    build: Callable[[Dataset], Any], folds: list[tuple[Dataset, list[Experiment]]], window: int
+) -> float:
+    """:func:`held_out_error`, infinite where ``build`` cannot be fitted or simulated on a
+    fold (a candidate structure that fails loses instead of stopping its caller)."""
+    try:
+        return held_out_error(build, folds, window)
+    except (TendonkitError, ValueError, np.linalg.LinAlgError):
+        return float("inf")
+
+
 def held_out_error(
     build: Callable[[Dataset], Any], folds: list[tuple[Dataset, list[Experiment]]], window: int
 ) -> float:

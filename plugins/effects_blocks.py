@@ -36,7 +36,7 @@ from tendonkit.errors import TendonkitError
 from tendonkit.hookspecs import hookimpl
 from tendonkit.metrics import fit
 from tendonkit.plugins import _bodies
-from tendonkit.plugins._arx_structure import PARSIMONY, cv_folds, held_out_error
+from tendonkit.plugins._arx_structure import PARSIMONY, cv_folds, held_out_or_inf
 from tendonkit.schema import ARX, Block, Model
 from tendonkit.simulate import aligned, initial_span, play_operator, simulate, simulate_dataset
 from tendonkit.terms import Factor, Term
@@ -60,13 +60,8 @@ def _held_out_better(
         folds = cv_folds(ctx.train, window)
     except TendonkitError:
         return False
-    errors = []
-    for build in (richer, leaner):
-        try:
-            errors.append(held_out_error(build, folds, window))
-        except (TendonkitError, ValueError, np.linalg.LinAlgError):
-            errors.append(np.inf)
-    return bool(errors[0] * (1.0 + PARSIMONY) < errors[1])
+    rich, lean = (held_out_or_inf(build, folds, window) for build in (richer, leaner))
+    return bool(rich * (1.0 + PARSIMONY) < lean)
 
 
 def _between_values(a: np.ndarray, t: float) -> float:

@@ -43,7 +43,7 @@ from tendonkit.output_error import free_parameters
 from tendonkit.plugins import _bodies
 from tendonkit.plugins._arx_structure import PARSIMONY as ARX_PARSIMONY
 from tendonkit.plugins._arx_structure import as_tuple as _as_tuple
-from tendonkit.plugins._arx_structure import cv_folds, cv_window, held_out_error
+from tendonkit.plugins._arx_structure import cv_folds, cv_window, held_out_or_inf
 from tendonkit.plugins._bla_split import best_split
 from tendonkit.plugins.arx import ARX as ArxOptions
 from tendonkit.schema import ARX, Block, Model, StateSpace
@@ -496,16 +496,13 @@ class StaticNonlinearity(_TermEffect):
         u = ctx.train.u
         mu_u, sd_u = u.mean(axis=0), np.where(u.std(axis=0) > 0, u.std(axis=0), 1.0)
 
-        def powers(names: tuple[str, ...], lags: list[list[int]], mu, sd, ps) -> list[Term]:  # type: ignore[no-untyped-def]
-            return [
-                Term((Factor(name, power=p, lag=lag, scale=float(1 / sd[j]), offset=float(mu[j])),))
-                for p in ps
-                for j, name in enumerate(names)
-                for lag in lags[j]
-            ]
-
         in_lags = [_bodies.input_lags(base, m) for m in range(len(ctx.train.inputs))]
-        hammer = powers(ctx.train.inputs, in_lags, mu_u, sd_u, (2, 3))
+        hammer = [
+            Term((Factor(name, power=p, lag=lag, scale=float(1 / sd_u[j]), offset=float(mu_u[j])),))
+            for p in (2, 3)
+            for j, name in enumerate(ctx.train.inputs)
+            for lag in in_lags[j]
+        ]
         absu = [
             Term((Factor(name, fn="abs", lag=lag, scale=float(1 / sd_u[j])),))
             for j, name in enumerate(ctx.train.inputs)
@@ -699,10 +696,7 @@ def _wiener_order(
 
     table = []
     for n in range(1, ctx.max_order + 1):
-        try:
-            err = held_out_error(lambda d, n=n: fit_wiener(refit_of(n), d), folds, window)
-        except (TendonkitError, ValueError, np.linalg.LinAlgError):
-            continue
+        err = held_out_or_inf(lambda d, n=n: fit_wiener(refit_of(n), d), folds, window)
         if np.isfinite(err):
             table.append({"order": n, "held_out_rms": err})
     if not table:

@@ -50,6 +50,7 @@ from .simulate import (
     _apply_blocks,
     aligned,
     apply_block,
+    block_inputs,
     curve_slope,
     initial_span,
     inner_outputs,
@@ -669,15 +670,13 @@ def _arx_jacobian(
                 )
                 Sx = S[L:]
                 Bx = np.zeros((N, ny, n_out if with_blocks else 0))
-                signal = np.array(ys, dtype=float)
-                for k, (j, b) in enumerate(chain):  # each block's tangent, in order
-                    x = signal[:, j]
+                entering = block_inputs(m.output_blocks, outputs, ys)
+                for k, ((j, b), x) in enumerate(zip(chain, entering, strict=True)):
                     Sx[:, j, :] = block_tangent(b, x, Sx[:, j, :])
                     if with_blocks:
                         Bx[:, j, :] = block_tangent(b, x, Bx[:, j, :])
                         if k in curve_at:  # d f / d c_i = x^i
                             Bx[:, j, curve_at[k] : curve_at[k] + 4] = np.vander(x, 4, True)
-                    signal[:, j] = apply_block(b, x)
                 linear.append((-Sx / scale[None, :, None]).reshape(N * ny, -1))
                 block_cols.append((-Bx / scale[None, :, None]).reshape(N * ny, -1))
         out = np.zeros((r0.size, theta.size))

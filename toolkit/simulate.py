@@ -162,6 +162,18 @@ def _apply_blocks(
     return out
 
 
+def block_inputs(blocks: Sequence[Block], names: Sequence[str], s: FloatArray) -> list[FloatArray]:
+    """The signal entering each of ``blocks`` (its own column of ``s`` (n, len(names)), the
+    blocks before it applied in order): what a block's derivative or its undoing is taken at."""
+    out = np.array(s, dtype=float)
+    entering = []
+    for b in blocks:
+        j = list(names).index(b.signal)
+        entering.append(out[:, j].copy())
+        out[:, j] = apply_block(b, out[:, j])
+    return entering
+
+
 def curve_value(p: Mapping[str, float], s: Any) -> Any:
     """A ``polynomial`` block's curve ``c0 + c1 s + c2 s^2 + c3 s^3`` (scalar or array)."""
     return p["c0"] + s * (p["c1"] + s * (p["c2"] + s * p["c3"]))

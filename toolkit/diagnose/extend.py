@@ -30,6 +30,7 @@ from ..schema import ARX, Block, Model, SparseMap, StateSpace
 from ..simulate import (
     aligned,
     apply_block,
+    block_inputs,
     curve_inverse,
     inner_outputs,
     simulate,
@@ -76,19 +77,14 @@ def driven_outputs(model: Model, data: Dataset) -> Dataset:
     sims = simulate_dataset(model.replace(output_blocks=()), inner)
     exps = []
     for e, e_in, sim in zip(data.experiments, inner.experiments, sims, strict=True):
-        s = np.where(np.isfinite(sim), sim, e_in.y)
-        entering = []
-        for b in blocks:
-            entering.append(s.copy())
-            j = names.index(b.signal)
-            s[:, j] = apply_block(b, s[:, j])
+        entering = block_inputs(blocks, names, np.where(np.isfinite(sim), sim, e_in.y))
         z = np.array(e.y, dtype=float)
-        for b, s_in in zip(reversed(blocks), reversed(entering), strict=True):
+        for b, x in zip(reversed(blocks), reversed(entering), strict=True):
             j = names.index(b.signal)
             if b.kind == "polynomial":
                 z[:, j] = curve_inverse(b, z[:, j])
             else:
-                z[:, j] = z[:, j] + (s_in[:, j] - apply_block(b, s_in[:, j]))
+                z[:, j] = z[:, j] + (x - apply_block(b, x))
         exps.append(dataclasses.replace(e, y=z))
     return data.with_experiments(exps)
 

@@ -97,26 +97,29 @@ def _predict_ss_terms(
             "need their state estimated at every sample; use k=1 or a simulation."
         )
     L = max((t.max_lag for t in rep.terms), default=1)
-    out = y_raw.copy()
     names_in, names_out = model.input_names, model.output_names
-    for t in range(k - 1 + L, u.shape[0]):
-        x = Xp[t - k + 1]
-        ywin = {n: list(y_raw[t - k + 1 - L : t - k + 1, j]) for j, n in enumerate(names_out)}
-        for j in range(t - k + 1, t):
-            yj = rep.C @ x + rep.D @ u[j] + y0
-            for c, n in enumerate(names_out):
-                ywin[n].append(yj[c])
-            vals = np.array(
-                [
-                    ywin[n][-1 - lag]
-                    if n in ywin
-                    else u[j - lag, names_in.index(n)] + u0[names_in.index(n)]
-                    for n, lag in ct.keys
-                ]
-            )
-            x = rep.A @ x + rep.B @ u[j] + rep.E @ ct.evaluate(vals)
-        out[t] = rep.C @ x + rep.D @ u[t] + y0
-    return out
+    u_raw = u + u0
+    # Pass i holds x̂(t | t-i) and ŷ(t | t-i) for every t (vectorised over t).  The terms at
+    # t-1 read each output at lag l as known at t-i: measured where l >= i, else the
+    # prediction ŷ(t-1-l | t-i) of horizon i - l.
+    states = Xp[:-1]
+    outs = [y_raw, states @ rep.C.T + u @ rep.D.T + y0]
+    for i in range(1, k):
+        vals = []
+        for name, lag in ct.keys:
+            if name in names_out:
+                src = outs[i - lag] if lag < i else y_raw
+                vals.append(_past(src, 1 + lag, y_raw[0])[:, names_out.index(name)])
+            else:
+                vals.append(_past(u_raw, 1 + lag, u_raw[0])[:, names_in.index(name)])
+        theta = ct.evaluate(np.array(vals)).T
+        states = (
+            _past(states, 1, states[0]) @ rep.A.T + _past(u, 1, u[0]) @ rep.B.T + theta @ rep.E.T
+        )
+        outs.append(states @ rep.C.T + u @ rep.D.T + y0)
+    out = outs[k].copy()
+    out[: k - 1 + L] = y_raw[: k - 1 + L]
+    return np.asarray(out)
 
 
 def _predict_ss(rep: StateSpace, u: FloatArray, y: FloatArray, k: int) -> FloatArray:
@@ -198,15 +201,74 @@ def _predict_recursive(model: Model, u: FloatArray, y: FloatArray, k: int) -> Fl
     """Iterate one-step predictions: pass j uses predictions of pass j-i at lag i < j."""
     rep = model.representation
     passes = [y]  # passes[0] = measurement
+    # An ARX's input part (the offset, the input lags and the terms that read inputs only) is
+    # the same in every pass: computed once, k passes cost the output part only.
+    fixed = _arx_input_part(model, rep, u) if isinstance(rep, ARX) and k > 1 else None
     for j in range(1, k + 1):
-        passes.append(_one_pass(model, rep, u, passes, j))
+        passes.append(_one_pass(model, rep, u, passes, j, fixed))
     return passes[k].copy()
 
 
+def _past(x: FloatArray, lag: int, first: FloatArray) -> FloatArray:
+    """``x`` delayed by ``lag`` samples, its first ``lag`` rows ``first``."""
+    out = np.empty_like(x)
+    out[lag:] = x[: max(x.shape[0] - lag, 0)]
+    out[:lag] = first
+    return out
+
+
+def _split_terms(model: Model, rep: ARX) -> tuple[list[int], list[int]]:
+    """Indices of the ARX's terms that read inputs only, and of those that read an output."""
+    outputs = set(model.output_names)
+    fixed: list[int] = []
+    moving: list[int] = []
+    for i, t in enumerate(rep.terms):
+        (moving if t.signals & outputs else fixed).append(i)
+    return fixed, moving
+
+
+def _terms_part(
+    model: Model, rep: ARX, which: list[int], u: FloatArray, past_y: Any
+) -> FloatArray | None:
+    """``Σ c_i term_i`` over the terms ``which`` of an ARX (None without them)."""
+    if not which or rep.term_coefficients is None:
+        return None
+    ct = CompiledTerms([rep.terms[i] for i in which])
+    vals = []
+    for name, lag in ct.keys:
+        if name in model.output_names:
+            vals.append(past_y(lag)[:, model.output_names.index(name)])
+        else:
+            vals.append(_past(u, lag, u[0])[:, model.input_names.index(name)])
+    return np.asarray(ct.evaluate(np.array(vals)).T @ rep.term_coefficients[which])
+
+
+def _arx_input_part(model: Model, rep: ARX, u: FloatArray) -> FloatArray:
+    """What an ARX's prediction takes from the inputs alone, for every t: the offset, the
+    input lags and the terms that read no output (pass-independent)."""
+    _, G, off = _arx_parts(model, rep)
+    part = np.zeros((u.shape[0], rep.A[0].shape[0] if rep.A else len(model.output_names)))
+    part += off
+    for lag, Gl in enumerate(G):
+        if np.any(Gl):
+            part += _past(u, lag, u[0]) @ Gl.T
+    if rep.terms:
+        terms = _terms_part(model, rep, _split_terms(model, rep)[0], u, None)
+        if terms is not None:
+            part += terms
+    return part
+
+
 def _one_pass(
-    model: Model, rep: Any, u: FloatArray, passes: list[FloatArray], j: int
+    model: Model,
+    rep: Any,
+    u: FloatArray,
+    passes: list[FloatArray],
+    j: int,
+    fixed: FloatArray | None = None,
 ) -> FloatArray:
-    """Prediction ``ŷ(t | t-j)`` for every t, vectorised over t."""
+    """Prediction ``ŷ(t | t-j)`` for every t, vectorised over t (``fixed``: an ARX's input
+    part, :func:`_arx_input_part`, when the caller has it)."""
     N = u.shape[0]
 
     def past_y(lag: int) -> FloatArray:
@@ -223,22 +285,15 @@ def _one_pass(
         return out
 
     if isinstance(rep, ARX):
-        _, G, off = _arx_parts(model, rep)
-        pred = np.zeros_like(passes[0]) + off
+        if fixed is None:
+            fixed = _arx_input_part(model, rep, u)
+        pred = fixed.copy()
         for i, Ai in enumerate(rep.A, start=1):
             pred -= past_y(i) @ Ai.T
-        for lag, Gl in enumerate(G):
-            if np.any(Gl):
-                pred += past_u(lag) @ Gl.T
-        if rep.terms and rep.term_coefficients is not None:
-            ct = CompiledTerms(rep.terms)
-            vals = []
-            for name, lag in ct.keys:
-                if name in model.output_names:
-                    vals.append(past_y(lag)[:, model.output_names.index(name)])
-                else:
-                    vals.append(past_u(lag)[:, model.input_names.index(name)])
-            pred += ct.evaluate(np.array(vals)).T @ rep.term_coefficients
+        if rep.terms:
+            terms = _terms_part(model, rep, _split_terms(model, rep)[1], u, past_y)
+            if terms is not None:
+                pred += terms
         L = arx_max_lag(rep, len(model.inputs))
         pred[:L] = passes[0][:L]
         return pred

@@ -1139,12 +1139,13 @@ def test_a_named_wiener_model_is_refitted_with_its_own_order():
 # -- routes of evidence, screened on the training data ------------------------------------------
 
 
-def _noisy_process(seed: int, n: int = 3000) -> Dataset:
-    """A first-order process (pole 0.95, gain 2) under band-limited input, 20 % output noise:
-    the one-step prediction error is mostly that noise, the free-run error is the model's."""
+def _noisy_process(seed: int, n: int = 3000, pole: float = 0.95, band: float = 0.9) -> Dataset:
+    """A first-order process (pole 0.95, gain 2) under band-limited input (an AR(1) of
+    coefficient ``band``), 20 % output noise: the one-step prediction error is mostly that
+    noise, the free-run error is the model's."""
     rng = np.random.default_rng(seed)
-    u = lfilter([1.0], [1.0, -0.9], rng.standard_normal(n))
-    y = lfilter([0.0, 0.1], [1.0, -0.95], u)
+    u = lfilter([1.0], [1.0, -band], rng.standard_normal(n))
+    y = lfilter([0.0, 2.0 * (1.0 - pole)], [1.0, -pole], u)
     y = y + 0.2 * y.std() * rng.standard_normal(n)
     exp = Experiment(t=np.arange(n, dtype=float), u=u[:, None], y=y[:, None], name=f"p{seed}")
     return Dataset(inputs=("u",), outputs=("y",), experiments=(exp,), dt=1.0)
@@ -1171,7 +1172,8 @@ def test_a_route_that_shows_nothing_on_the_training_data_costs_the_finding_nothi
     """A 10 % gain error of a slow process: the free run sees it, the one-step prediction
     (mostly noise) does not.  The routes are screened on the training data, so the finding's
     p-value is its free run's, not twice it (Bonferroni over a route that could not see it);
-    a model no better in either route keeps both routes."""
+    a model no better in either route keeps both routes.  The free run has all of the
+    test's batches here, so there is no third route."""
     from tendonkit.diagnose.engine import (
         Context,
         score_baseline,
@@ -1200,13 +1202,81 @@ def test_a_route_that_shows_nothing_on_the_training_data_costs_the_finding_nothi
     same = screen_routes(ctx, off, ["simulation", "prediction"], settings)
     assert same is not None and same["kept"] == ["simulation", "prediction"]
 
-    trial = try_effect(
-        _Truth(truth), "actuator_lag", ctx, score_baseline(off, valid), valid, settings
-    )
+    # the free run and the one-step prediction, where that is mostly noise
+    ref = score_baseline(off, valid)
+    trial = try_effect(_Truth(truth), "actuator_lag", ctx, ref, valid, settings)
     assert not isinstance(trial, str)
     assert trial.test["routes_screened"]["kept"] == ["simulation"]
     assert trial.test["p_value"] == trial.p_value < 1e-3  # the free run's own, no factor 2
     assert trial.test["prediction"]["p_value"] > 0.5
+    # the free run has the test's fifty batches: no third route (docs/diagnose.md, step 5)
+    assert ref.horizon == 15 and trial.test["n_batches"] == 50 and "horizon" not in trial.test
+
+
+def test_the_third_route_predicts_over_a_horizon_where_the_free_run_has_few_batches():
+    """A slower process (pole 0.995) and a model whose pole is 0.985 (the same static gain):
+    the free run has a dozen batches, the one-step prediction sees nothing, and the
+    prediction over 15 samples (3000 / 200) sees the error on the training and the
+    validation data.  A finding that cannot name a cause (its gain below ``min_gain``) is
+    spared that route's predictions: screened on the training data like the others, it
+    counts with p = 1, so its p-value is never below the computed one's."""
+    from tendonkit.diagnose.engine import Context, score_baseline, try_effect
+    from tendonkit.diagnose.residuals import analyse
+    from tendonkit.manager import identifiers
+
+    train, valid = (_noisy_process(s, pole=0.995, band=0.99) for s in (1, 2))
+    truth = identifiers().get("arx").create(na=1, nb=1, nk=1).identify(train)
+    rep = truth.representation
+    truth = truth.replace(
+        representation=dataclasses.replace(rep, A=(np.array([[-0.995]]),), B=(np.array([[0.01]]),))
+    )
+    off = truth.replace(
+        representation=dataclasses.replace(rep, A=(np.array([[-0.985]]),), B=(np.array([[0.03]]),))
+    )
+    settings = Settings(0.01, 0.02, 0.25, 0.8, 0, ("actuator_lag",), {}, False)
+    ctx = Context(train=train, baseline=off, identifier=None, residuals=analyse(off, train))
+    ref = score_baseline(off, valid)
+    trial = try_effect(_Truth(truth), "actuator_lag", ctx, ref, valid, settings)
+    assert not isinstance(trial, str)
+    assert trial.test["n_batches"] < 50 and trial.test["prediction"]["p_value"] > 0.5
+    assert trial.test["routes_screened"]["kept"] == ["simulation", "horizon"]
+    ahead = trial.test["horizon"]
+    assert ahead["horizon"] == 15 and ahead["p_value"] < 1e-3
+    assert ahead["n_batches"] > 3 * trial.test["n_batches"]  # a shorter memory: more batches
+    assert trial.p_value == pytest.approx(2 * min(trial.test["p_value"], ahead["p_value"]))
+    small = dataclasses.replace(settings, min_gain=100.0)
+    spared = try_effect(_Truth(truth), "actuator_lag", ctx, ref, valid, small)
+    assert not isinstance(spared, str)
+    assert spared.horizon_loss is None and spared.test["horizon"]["p_value"] == 1.0
+    assert spared.test["horizon"]["reason"].startswith("not computed")
+    assert spared.test["routes_screened"]["kept"] == ["simulation", "horizon"]
+    assert spared.test["routes"] == 2
+    assert spared.p_value == pytest.approx(2 * spared.test["p_value"])
+    assert spared.p_value >= trial.p_value  # never below the computed route's
+
+
+def test_the_prediction_horizon_reads_the_record_length_only():
+    """``n / 200`` samples (50 batches of 4 horizons), at most a tenth of the shortest
+    experiment, at least one step."""
+    from tendonkit.diagnose.engine import prediction_horizon
+
+    def data(*lengths: int) -> Dataset:
+        exps = tuple(
+            Experiment(
+                t=np.arange(n, dtype=float),
+                u=np.ones((n, 1)),
+                y=np.arange(n, dtype=float)[:, None],
+                name=f"e{i}",
+            )
+            for i, n in enumerate(lengths)
+        )
+        return Dataset(inputs=("u",), outputs=("y",), experiments=exps, dt=1.0)
+
+    assert prediction_horizon(data(4000)) == 20
+    assert prediction_horizon(data(2000, 2000)) == 20
+    assert prediction_horizon(data(100, 100)) == 1  # the coupled drives' records: one step
+    assert prediction_horizon(data(10000, 300)) == 30  # a tenth of the short experiment
+    assert prediction_horizon(data(399)) == 1
 
 
 class _Fixed:

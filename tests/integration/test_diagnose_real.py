@@ -173,17 +173,21 @@ def test_default_options_name_the_known_effect(name):
         )
     if name == "EMPS":
         # A 3.75-sample input delay (one parameter) is significant too and gains 85 % of
-        # friction's +31.9: parsimony alone would name it.  Friction encompasses it: with
-        # friction in the model the delay adds nothing (+0.01), with the delay in it friction
-        # still adds +4.6; the tie says so.
+        # friction's +31.9, and friction is named (before the third route of the test the
+        # tie was with the delay, decided for friction by encompassing).
+        delay = next(f for f in d.findings if f.effect == "input_delay")
+        assert delay.significant and delay.gain >= d.settings["tie_ratio"] * d.best.gain
         enc = d.best.test["encompassing"]
-        assert enc["over"] == "input_delay" and enc["encompasses"]
-        assert enc["its_gain_after"] < d.settings["min_gain"] <= enc["gain_after_it"]
-        assert (
-            d.ambiguous["decided"]
-            and "the data decide for coulomb_friction" in (d.ambiguous["statement"])
-        )
-        assert "to confirm it: " in render_diagnosis(d.to_dict())
+        assert enc["over"] == "gravity" and not enc["encompasses"]
+        assert max(enc["its_gain_after"], enc["gain_after_it"]) < d.settings["min_gain"]
+        # The runner-up of the tie is a constant load (the drive's offset force, -3.16 N in
+        # the benchmark's physical model), significant on the prediction over 124 samples
+        # (since 2026-11-27): it explains the same drift as friction and neither adds to the
+        # other, so the tie is reported with the experiment that tells them apart.
+        assert d.ambiguous["between"] == ["coulomb_friction", "gravity"]
+        assert not d.ambiguous["decided"]
+        assert "neither accounts for the other" in d.ambiguous["statement"]
+        assert "to tell them apart: " in render_diagnosis(d.to_dict())
 
 
 def test_bouc_wen_is_hysteresis_at_benchmark_grade():

@@ -388,6 +388,26 @@ def test_a_speed_limit_inside_a_force_loop_is_named_in_its_loop():
     assert params["step_limit_gain"] > 0.9 * d.best.test["train_gain"] > 5.0
 
 
+def test_a_dead_band_on_a_finely_sampled_chain_shows_over_the_prediction_horizon():
+    """The chain of three masses at 5 ms with a force dead band (``bench_diagnose_chain.py``,
+    fresh seed 842, drawn after the horizon rule was written): the band gains +13.4 points,
+    but the lightly damped chain's free-run error has an autocorrelation time of about 300
+    samples (five batches) and a one-step prediction is mostly the 1 % measurement noise, so
+    with those two routes it had p_adj 0.05 and nothing was named.  The third route, a
+    prediction over 20 samples (4000 / 200), has fifty batches and the band is named."""
+    bench = _tank_bench()
+    p = bench.draw("dead_zone", 842)
+    train, valid = bench.chain("dead_zone", p, 842), bench.chain("dead_zone", p, 1342)
+    d = diagnose(train, valid, max_causes=1, refine=False)
+    top = ", ".join(f"{f.effect} {f.gain:+.2f} (p_adj {f.p_adjusted:.1e})" for f in d.findings[:3])
+    assert d.cause == "dead_zone", top
+    test = d.best.test
+    assert test["n_batches"] == 5 and test["p_value"] > 1e-3  # the free run
+    assert test["prediction"]["p_value"] > 1e-3  # one step ahead
+    ahead = test["horizon"]
+    assert ahead["horizon"] == 20 and ahead["n_batches"] == 50 and ahead["p_value"] < 1e-10
+
+
 def test_a_loop_that_gains_as_a_linear_lag_is_not_named():
     """The fast tanks with a pump curve (seed 801): after the curve, a loop with the load
     gained 2.2 training points, 2.0 of them without its step limit — linear dynamics the

@@ -29,10 +29,11 @@ The procedure, for any registered identifier as the baseline and any registered 
    never names a cause: without structure the batch log-ratios scatter around
    ``log(1 - δ) < 0``.  An effect may also test its signature directly on the validation
    data (``direct_test``: a clipped output piles up at its level,
-   :func:`tendonkit.diagnose.clip.atom_test`); the finding's p-value is then the Bonferroni
-   combination ``2·min(p_loss, p_direct)`` of the two routes.  The loss test's two routes
-   (free run, one-step prediction) are screened on the training data first
-   (:func:`screen_routes`): a route that shows nothing there does not count in the factor.
+   :func:`tendonkit.diagnose.clip.atom_test`); the finding's p-value is the Bonferroni
+   combination ``k·min(p)`` over its ``k`` routes.  The loss test's routes (free run,
+   one-step prediction, prediction over :func:`prediction_horizon` samples) are screened on
+   the training data first (:func:`screen_routes`): a route that shows nothing there does
+   not count in the factor.
    Where the validation record is short against the errors' autocorrelation time, held-out
    blocks of the training record add a route (:func:`held_out_test`, :func:`complete_held_out`).
 6. **Naming.** The significant finding with the largest gain names the cause; with none the
@@ -88,7 +89,7 @@ from .findings import (
     tie_runner_up,
 )
 from .residuals import ResidualAnalysis, analyse
-from .stats import holm, loss_test, routes_p_value
+from .stats import BATCH_TAUS, MAX_BATCHES, holm, loss_test, routes_p_value
 
 FloatArray = NDArray[np.float64]
 
@@ -389,6 +390,11 @@ class Reference:
     residuals: ResidualAnalysis
     #: Per-sample loss of the baseline's one-step prediction (None if it cannot predict).
     prediction_loss: FloatArray | None = None
+    #: Horizon of the third route on these data (:func:`prediction_horizon`).
+    horizon: int = 1
+    #: Per-sample loss of the baseline's ``horizon``-step prediction (None if it cannot
+    #: predict, or the horizon is one step: the second route is that one).
+    horizon_loss: FloatArray | None = None
 
 
 @dataclass(frozen=True)
@@ -411,6 +417,7 @@ class Trial:
     loss: FloatArray
     build: Any = None
     prediction_loss: FloatArray | None = None
+    horizon_loss: FloatArray | None = None
 
 
 def auto_baseline(
@@ -551,6 +558,7 @@ class RefinedFallback:
 def score_baseline(baseline: Model, valid: Dataset) -> Reference:
     """The baseline's validation simulation, fit, loss and residual analysis."""
     y, sim = _sim_pair(baseline, valid)
+    horizon = prediction_horizon(valid)
     return Reference(
         y=y,
         sim=sim,
@@ -558,22 +566,38 @@ def score_baseline(baseline: Model, valid: Dataset) -> Reference:
         loss=_loss(y, sim),
         residuals=analyse(baseline, valid),
         prediction_loss=prediction_losses(baseline, valid),
+        horizon=horizon,
+        horizon_loss=prediction_losses(baseline, valid, horizon) if horizon > 1 else None,
     )
 
 
-#: Horizon of the prediction route of the significance test (samples).
-PREDICTION_HORIZON = 1
+def prediction_horizon(data: Dataset) -> int:
+    """Horizon (samples) of the third route of the significance test on ``data``.
+
+    The longest whose errors :func:`loss_test` can still cut into its most batches: a
+    ``k``-step prediction error decorrelates within about ``k`` samples, so a record of ``n``
+    samples holds ``MAX_BATCHES`` batches of ``BATCH_TAUS`` horizons at ``k = n / (BATCH_TAUS
+    · MAX_BATCHES)`` (20 on 4,000 samples); at most a tenth of the shortest experiment, and 1
+    (the one-step prediction) on records shorter than 400 samples.  It depends on the
+    record's length only, never on its values, so the route keeps its level.
+    """
+    lengths = [e.n_samples for e in data.experiments]
+    k = min(sum(lengths) // int(BATCH_TAUS * MAX_BATCHES), min(lengths) // 10)
+    return max(1, int(k))
 
 
-def prediction_losses(model: Model, valid: Dataset) -> FloatArray | None:
-    """Per-sample loss of the model's ``PREDICTION_HORIZON``-step prediction of ``valid``.
+def prediction_losses(model: Model, valid: Dataset, horizon: int = 1) -> FloatArray | None:
+    """Per-sample loss of the model's ``horizon``-step prediction of ``valid``.
 
-    The second route of the significance test (docs/diagnose.md, *Statistics*).  A free-run
-    error wanders with the slowest mode of the system — on EMPS, a position drive in closed
-    loop, its autocorrelation time is a quarter of the record, so five batches are all the
-    evidence there is and a gain of +32 points had p = 0.03 before any adjustment.  One-step
-    prediction errors decorrelate within a few samples, and a structure the baseline lacks
-    shows in them as well.  None for a model with output blocks.
+    The second (one step) and third (:func:`prediction_horizon`) routes of the significance
+    test (docs/diagnose.md, *Statistics*).  A free-run error wanders with the slowest mode of
+    the system — on EMPS, a position drive in closed loop, its autocorrelation time is a
+    quarter of the record, so five batches are all the evidence there is and a gain of +32
+    points had p = 0.03 before any adjustment.  Errors of a prediction over a few samples from
+    the measured outputs decorrelate within about as many samples, and a structure the
+    baseline lacks shows in them as well; a one-step prediction of a finely sampled record is
+    mostly measurement noise, while a force loop's lag shows one step ahead and hardly over
+    twenty.  None for a model with output blocks.
     """
     if model.output_blocks:
         # predict() runs the representation from measured outputs; a measured output that
@@ -586,9 +610,7 @@ def prediction_losses(model: Model, valid: Dataset) -> FloatArray | None:
     try:
         data = aligned(model, valid)
         with np.errstate(all="ignore"):
-            pred = np.vstack(
-                [predict(model, e.u, e.y, PREDICTION_HORIZON) for e in data.experiments]
-            )
+            pred = np.vstack([predict(model, e.u, e.y, horizon) for e in data.experiments])
     except (TendonkitError, ValueError, np.linalg.LinAlgError, FloatingPointError):
         return None
     return _loss(data.y, pred)
@@ -628,32 +650,59 @@ def try_effect(
     if base_pred is not None and pred is not None:
         ptest = loss_test(base_pred, pred, margin=delta)
         loss_routes["prediction"] = ptest.p_value
-        test_info["prediction"] = {**ptest.to_dict(), "horizon": PREDICTION_HORIZON}
+        test_info["prediction"] = {**ptest.to_dict(), "horizon": 1}
+    gain = _mean(ext_fit) - _mean(ref.fit) if np.all(np.isfinite(f)) else -math.inf
+    direct = _direct_test(effect, ctx, ext, valid)
+    could = gain >= settings.min_gain and ext.train_gain > 0
+    # The route over the horizon is there where the free run has fewer batches than the
+    # test's most (its errors move slowly against the record; with all of them, the
+    # prediction would add no batches) — the test's own batch rule, as for the held-out
+    # route below.  It costs `horizon` prediction passes per model, so it is computed on the
+    # validation data for the findings that could name a cause (by their gain, or seen
+    # directly).  For the others it is screened like every route and, where the training
+    # data keep it, counts in the factor with p = 1: never below the p-value the computed
+    # route would give, so the choice by the validation gain keeps the level.
+    present = ref.horizon_loss is not None and test.n_batches < MAX_BATCHES
+    computed = present and (could or (direct is not None and ext.train_gain > 0))
+    deferred = present and not computed
+    base_ahead = ref.horizon_loss if computed else None
+    ahead = prediction_losses(ext.model, valid, ref.horizon) if base_ahead is not None else None
+    if base_ahead is not None and ahead is not None:
+        htest = loss_test(base_ahead, ahead, margin=delta)
+        loss_routes["horizon"] = htest.p_value
+        test_info["horizon"] = {**htest.to_dict(), "horizon": ref.horizon}
     if ext.linear_part is not None:
-        beyond = _beyond_linear_part(ext.linear_part, loss, pred, loss_routes, valid, delta)
+        beyond = _beyond_linear_part(
+            ext.linear_part, loss, (pred, ahead), loss_routes, valid, delta, ref.horizon
+        )
         test_info["linear_part"] = beyond
         loss_routes = {r: max(p, beyond[r]) for r, p in loss_routes.items()}
     # The screen can only lower a p-value below alpha where a route is below it already.
+    screened = list(loss_routes) + ["horizon"] * deferred
     screen = (
-        screen_routes(ctx, ext.model, list(loss_routes), settings)
+        screen_routes(ctx, ext.model, screened, settings, ref.horizon)
         if min(loss_routes.values()) < settings.alpha
         else None
     )
     if screen is not None:
         test_info["routes_screened"] = screen
     routes = [p for r, p in loss_routes.items() if screen is None or r in screen["kept"]]
-    direct = _direct_test(effect, ctx, ext, valid)
+    if deferred and (screen is None or "horizon" in screen["kept"]):
+        routes.append(1.0)
+        test_info["horizon"] = {
+            "p_value": 1.0,
+            "horizon": ref.horizon,
+            "reason": "not computed: the finding cannot name a cause",
+        }
     if direct is not None:
         routes.append(direct["p_value"])
         test_info["direct"] = direct
-    gain = _mean(ext_fit) - _mean(ref.fit) if np.all(np.isfinite(f)) else -math.inf
     if test.n_batches < HELD_OUT_BELOW:
         # The route counts in the factor whenever the record is short against the loss
         # difference's autocorrelation time — the test's own batch rule, which reads how
         # slowly the difference moves, not its mean.  Its p-value is 1 (conservative) until
         # complete_held_out computes it, only for the findings that could name a cause and
         # are not significant without it.
-        could = gain >= settings.min_gain and ext.train_gain > 0
         routes.append(1.0)
         test_info["held_out"] = {
             "p_value": 1.0,
@@ -682,16 +731,18 @@ def try_effect(
         loss=loss,
         build=ext.build,
         prediction_loss=pred,
+        horizon_loss=ahead,
     )
 
 
 def _beyond_linear_part(
     linear: Model,
     loss: FloatArray,
-    pred: FloatArray | None,
+    pred: tuple[FloatArray | None, FloatArray | None],
     routes: Collection[str],
     valid: Dataset,
     delta: float,
+    horizon: int = 1,
 ) -> dict[str, float]:
     """Each route's p-value of the extension against its linear part
     (:attr:`Extension.linear_part`); the caller takes the larger of it and the route's
@@ -700,8 +751,8 @@ def _beyond_linear_part(
     predicted gives that route 1 (no evidence beyond it).  An effect's direct test is not
     one of these routes: it reads a signature in the data (a clipped output's pile-up), not
     a comparison of two models' losses."""
-    ref = _route_losses(linear, valid)
-    ext = {"simulation": loss, "prediction": pred}
+    ref = _route_losses(linear, valid, horizon, routes)
+    ext = {"simulation": loss, "prediction": pred[0], "horizon": pred[1]}
     beyond = {}
     for route in routes:
         r, e = ref.get(route), ext.get(route)
@@ -825,7 +876,7 @@ def _cannot_name(
     :func:`_name_cause`); another cause ties with it when it gains at least ``tie_ratio`` of
     it or the named one is not significantly better (:func:`tie_runner_up`).  So ``t`` is
     left out only when it gains less than ``tie_ratio`` of the top significant finding, that
-    finding is significantly better than ``t`` (both routes, level ``alpha``), and no contest
+    finding is significantly better than ``t`` (every route, level ``alpha``), and no contest
     can name a smaller gain.
     """
     if not significant:
@@ -838,7 +889,10 @@ def _cannot_name(
     if not t.gain < settings.tie_ratio * top.gain:
         return False
     best = trials[top.effect]
-    p = routes_p_value((t.loss, t.prediction_loss), (best.loss, best.prediction_loss))
+    p = routes_p_value(
+        (t.loss, t.prediction_loss, t.horizon_loss),
+        (best.loss, best.prediction_loss, best.horizon_loss),
+    )
     return bool(p < settings.alpha)
 
 
@@ -960,28 +1014,42 @@ def held_out_test(effect: Effect, ctx: Context, settings: Settings) -> dict[str,
     return out
 
 
-def _route_losses(model: Model, data: Dataset) -> dict[str, FloatArray | None]:
-    """Per-sample losses of ``model`` on ``data``, by route of the test (None: not
-    available): the free run and the one-step prediction."""
-    try:
-        y, sim = _sim_pair(model, data)
-        simulation: FloatArray | None = _loss(y, sim)
-    except _FIT_ERRORS:
-        simulation = None
-    return {"simulation": simulation, "prediction": prediction_losses(model, data)}
+#: The routes of the loss test (:func:`try_effect`).
+ROUTES = ("simulation", "prediction", "horizon")
+
+
+def _route_losses(
+    model: Model, data: Dataset, horizon: int = 1, routes: Collection[str] = ROUTES
+) -> dict[str, FloatArray | None]:
+    """Per-sample losses of ``model`` on ``data`` for each of ``routes`` (None: not
+    available): the free run, the one-step prediction and the ``horizon``-step prediction
+    (None for one step)."""
+    out: dict[str, FloatArray | None] = {}
+    for route in routes:
+        if route == "simulation":
+            try:
+                y, sim = _sim_pair(model, data)
+                out[route] = _loss(y, sim)
+            except _FIT_ERRORS:
+                out[route] = None
+        elif route == "prediction":
+            out[route] = prediction_losses(model, data)
+        else:
+            out[route] = prediction_losses(model, data, horizon) if horizon > 1 else None
+    return out
 
 
 def screen_routes(
-    ctx: Context, model: Model, routes: Sequence[str], settings: Settings
+    ctx: Context, model: Model, routes: Sequence[str], settings: Settings, horizon: int = 1
 ) -> dict[str, Any] | None:
     """Which routes of evidence the validation test uses, chosen on the *training* data.
 
-    Each route (the free-run simulation, the one-step prediction) is tested on the training
+    Each route (the free-run simulation, the predictions) is tested on the training
     data as it will be on the validation data (:func:`loss_test`, same margin).  The routes
     whose training p-value is below ``alpha`` are kept; the validation p-values of the kept
     routes are then combined by Bonferroni.  With one route kept the finding pays no factor
     for the other, which showed nothing where the extension was fitted: a force lag behind
-    commanded inputs is invisible to the one-step prediction from measured outputs, and the
+    commanded inputs is invisible to a one-step prediction from measured outputs, and the
     factor 2 cost it its significance (docs/diagnose.md, "Routes of evidence").  The choice
     uses the training data only, so each kept route's validation p-value keeps its level and
     the family-wise error over effects is unchanged.  Every route is kept when none
@@ -991,10 +1059,12 @@ def screen_routes(
     if len(routes) < 2:
         return None
     cache = ctx._cache
-    if "train_losses" not in cache:
-        cache["train_losses"] = _route_losses(ctx.baseline, ctx.train)
-    base = cache["train_losses"]
-    ext = _route_losses(model, ctx.train)
+    key = f"train_losses_{horizon}"
+    base = cache.setdefault(key, {})
+    missing = [r for r in routes if r not in base]
+    if missing:
+        base.update(_route_losses(ctx.baseline, ctx.train, horizon, missing))
+    ext = _route_losses(model, ctx.train, horizon, routes)
     p: dict[str, float] = {}
     for r in routes:
         b, e = base.get(r), ext.get(r)
@@ -1627,7 +1697,9 @@ def _seen_directly(t: Trial | Finding) -> bool:
     direct = t.test.get("direct")
     if not direct:
         return False
-    routes = [t.test.get("p_value", 1.0), (t.test.get("prediction") or {}).get("p_value", 1.0)]
+    routes = [t.test.get("p_value", 1.0)] + [
+        (t.test.get(r) or {}).get("p_value", 1.0) for r in ("prediction", "horizon")
+    ]
     return bool(direct["p_value"] <= min(routes))
 
 
@@ -1648,7 +1720,9 @@ def conclude(
     of ``first``'s extension (:func:`cross_gains`), for the encompassing check of
     :func:`_name_cause`; None skips it.
     """
-    losses = {t.effect: (t.loss, t.prediction_loss) for t in trials}
+    losses: dict[str, tuple[FloatArray | None, ...]] = {
+        t.effect: (t.loss, t.prediction_loss, t.horizon_loss) for t in trials
+    }
     encompassing: dict[str, dict[str, Any]] = {}
     encompasses = None
     if cross is not None:
@@ -1969,7 +2043,7 @@ def _refined_gain(
 
 def _name_cause(
     findings: list[Finding],
-    losses: dict[str, tuple[FloatArray, FloatArray | None]],
+    losses: dict[str, tuple[FloatArray | None, ...]],
     alpha: float,
     tie_ratio: float,
     contest: Any = None,
@@ -2061,7 +2135,7 @@ def _encompassing(
 def _decide_tie(
     findings: list[Finding],
     best: Finding,
-    losses: dict[str, tuple[FloatArray, FloatArray | None]],
+    losses: dict[str, tuple[FloatArray | None, ...]],
     settings: Settings,
     cross: Any,
     records: dict[str, dict[str, Any]],

@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 
 from ..schema import Model
 from .residuals import ResidualAnalysis
-from .stats import BATCH_TAUS, obm_dof, routes_p_value
+from .stats import BATCH_TAUS, MAX_BATCHES, obm_dof, routes_p_value
 
 FloatArray = NDArray[np.float64]
 
@@ -564,8 +564,9 @@ MORE_DATA_CAP = 20.0
 def more_data_factor(finding: dict[str, Any], alpha: float, n_findings: int) -> float | None:
     """Roughly how many times as much validation data would make this finding significant.
 
-    For each loss route (free run, one-step prediction) the one-sided t-statistic of the
-    batch log-ratios, ``t = (mean + log(1 - margin)) / std_error``, grows with the square root
+    For each loss route (free run, one-step prediction, prediction over the horizon) the
+    one-sided t-statistic of the batch log-ratios, ``t = (mean + log(1 - margin)) /
+    std_error``, grows with the square root
     of the record's length if the gain holds.  A record ``K`` times as long has
     ``clip(K·n / (4 τ), 5, 50)`` batches (:func:`tendonkit.diagnose.stats.loss_test`; the
     degrees of freedom of :func:`tendonkit.diagnose.stats.obm_dof`), and needs ``t·√K`` above
@@ -584,7 +585,11 @@ def more_data_factor(finding: dict[str, Any], alpha: float, n_findings: int) -> 
     beyond = test.get("linear_part") or {}
     routes = []
     counted = 0  # routes in the test's Bonferroni factor, whether or not they can gain
-    for name, r in (("simulation", test), ("prediction", test.get("prediction") or {})):
+    for name, r in (
+        ("simulation", test),
+        ("prediction", test.get("prediction") or {}),
+        ("horizon", test.get("horizon") or {}),
+    ):
         counted += bool(r)
         # a route on which the extension's linear part decides gains nothing from more data
         if float(beyond.get(name, 0.0)) > float(r.get("p_value", 1.0)):
@@ -606,7 +611,7 @@ def more_data_factor(finding: dict[str, Any], alpha: float, n_findings: int) -> 
     for factor in np.geomspace(1.0, MORE_DATA_CAP, 61):
         for t, n, tau in routes:
             longer = int(factor * n)
-            batches = int(np.clip(longer // max(math.ceil(BATCH_TAUS * tau), 1), 5, 50))
+            batches = int(np.clip(longer // max(math.ceil(BATCH_TAUS * tau), 1), 5, MAX_BATCHES))
             dof = obm_dof(longer, longer // batches, BATCH_TAUS * tau)
             if t * math.sqrt(factor) >= stats.t.ppf(1.0 - level, dof):
                 return float(factor)
@@ -639,7 +644,7 @@ def _mean(d: dict[str, float]) -> float:
 def tie_runner_up(
     findings: list[Finding],
     best: Finding,
-    losses: dict[str, tuple[FloatArray, FloatArray | None]],
+    losses: dict[str, tuple[FloatArray | None, ...]],
     tie_ratio: float,
     alpha: float,
 ) -> Finding | None:
@@ -656,7 +661,7 @@ def tie_runner_up(
 def _ambiguity(
     findings: list[Finding],
     best: Finding,
-    losses: dict[str, tuple[FloatArray, FloatArray | None]],
+    losses: dict[str, tuple[FloatArray | None, ...]],
     tie_ratio: float,
     alpha: float,
 ) -> dict[str, Any] | None:

@@ -22,6 +22,8 @@ FloatArray = NDArray[np.float64]
 
 #: Batch length of :func:`loss_test`, in integrated autocorrelation times.
 BATCH_TAUS = 4.0
+#: Most batches :func:`loss_test` cuts a record into.
+MAX_BATCHES = 50
 
 
 @dataclass(frozen=True)
@@ -87,7 +89,7 @@ def loss_test(
     margin: float = 0.0,
     k: float = BATCH_TAUS,
     min_batches: int = 5,
-    max_batches: int = 50,
+    max_batches: int = MAX_BATCHES,
 ) -> LossTest:
     """Test that ``alternative`` has lower loss than ``reference`` by more than ``margin``.
 
@@ -202,7 +204,7 @@ def routes_p_value(
     """One-sided p-value that ``alternative`` is better, over several routes of evidence.
 
     Each route is a pair of per-sample losses on the same samples (the free-run simulation,
-    the one-step prediction); a route missing on either side (None) is skipped.  The routes'
+    a prediction); a route missing on either side (None) is skipped.  The routes'
     :func:`loss_test` p-values are combined by Bonferroni, ``k · min(p)``, which keeps the
     level whatever their dependence.
     """

@@ -269,20 +269,12 @@ def _one_pass(
 ) -> FloatArray:
     """Prediction ``ŷ(t | t-j)`` for every t, vectorised over t (``fixed``: an ARX's input
     part, :func:`_arx_input_part`, when the caller has it)."""
-    N = u.shape[0]
 
     def past_y(lag: int) -> FloatArray:
-        src = passes[j - lag] if lag < j else passes[0]
-        out = np.empty_like(src)
-        out[lag:] = src[: N - lag]
-        out[:lag] = passes[0][0]
-        return out
+        return _past(passes[j - lag] if lag < j else passes[0], lag, passes[0][0])
 
     def past_u(lag: int) -> FloatArray:
-        out = np.empty_like(u)
-        out[lag:] = u[: N - lag]
-        out[:lag] = u[0]
-        return out
+        return _past(u, lag, u[0])
 
     if isinstance(rep, ARX):
         if fixed is None:

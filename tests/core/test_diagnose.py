@@ -1140,7 +1140,7 @@ def test_a_named_wiener_model_is_refitted_with_its_own_order():
 
 
 def _noisy_process(seed: int, n: int = 3000, pole: float = 0.95, band: float = 0.9) -> Dataset:
-    """A first-order process (pole 0.95, gain 2) under band-limited input (an AR(1) of
+    """A first-order process (``pole``, gain 2) under band-limited input (an AR(1) of
     coefficient ``band``), 20 % output noise: the one-step prediction error is mostly that
     noise, the free-run error is the model's."""
     rng = np.random.default_rng(seed)
@@ -1252,7 +1252,6 @@ def test_the_third_route_predicts_over_a_horizon_where_the_free_run_has_few_batc
     assert spared.test["routes_screened"]["kept"] == ["simulation", "horizon"]
     assert spared.test["routes"] == 2
     assert spared.p_value == pytest.approx(2 * spared.test["p_value"])
-    assert spared.p_value >= trial.p_value  # never below the computed route's
 
 
 def test_the_prediction_horizon_reads_the_record_length_only():

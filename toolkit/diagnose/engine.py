@@ -80,6 +80,7 @@ from .effect import (
 )
 from .extend import extend_with_terms, fit_wiener, refit_with_input_blocks, with_note
 from .findings import (
+    ROUTES,
     SPECIAL_CASES,
     Diagnosis,
     Finding,
@@ -590,7 +591,7 @@ def prediction_losses(model: Model, valid: Dataset, horizon: int = 1) -> FloatAr
     """Per-sample loss of the model's ``horizon``-step prediction of ``valid``.
 
     The second (one step) and third (:func:`prediction_horizon`) routes of the significance
-    test (docs/diagnose.md, *Statistics*).  A free-run error wanders with the slowest mode of
+    test (docs/diagnose.md, step 5).  A free-run error wanders with the slowest mode of
     the system — on EMPS, a position drive in closed loop, its autocorrelation time is a
     quarter of the record, so five batches are all the evidence there is and a gain of +32
     points had p = 0.03 before any adjustment.  Errors of a prediction over a few samples from
@@ -659,9 +660,10 @@ def try_effect(
     # prediction would add no batches) — the test's own batch rule, as for the held-out
     # route below.  It costs `horizon` prediction passes per model, so it is computed on the
     # validation data for the findings that could name a cause (by their gain, or seen
-    # directly).  For the others it is screened like every route and, where the training
-    # data keep it, counts in the factor with p = 1: never below the p-value the computed
-    # route would give, so the choice by the validation gain keeps the level.
+    # directly, with a positive training gain).  For the others it is screened like every
+    # route and, where the training data keep it, counts in the factor with p = 1: never
+    # below the p-value the computed route would give, so the choice by the validation gain
+    # keeps the level.
     present = ref.horizon_loss is not None and test.n_batches < MAX_BATCHES
     computed = present and (could or (direct is not None and ext.train_gain > 0))
     deferred = present and not computed
@@ -1012,10 +1014,6 @@ def held_out_test(effect: Effect, ctx: Context, settings: Settings) -> dict[str,
         beyond = loss_test(np.concatenate(linear_losses), ext_all, margin=margin).p_value
         out = {**out, "p_value": max(t.p_value, beyond), "linear_part": beyond}
     return out
-
-
-#: The routes of the loss test (:func:`try_effect`).
-ROUTES = ("simulation", "prediction", "horizon")
 
 
 def _route_losses(
@@ -1698,7 +1696,7 @@ def _seen_directly(t: Trial | Finding) -> bool:
     if not direct:
         return False
     routes = [t.test.get("p_value", 1.0)] + [
-        (t.test.get(r) or {}).get("p_value", 1.0) for r in ("prediction", "horizon")
+        (t.test.get(r) or {}).get("p_value", 1.0) for r in ROUTES[1:]
     ]
     return bool(direct["p_value"] <= min(routes))
 

@@ -20,6 +20,11 @@ from .stats import BATCH_TAUS, MAX_BATCHES, obm_dof, routes_p_value
 
 FloatArray = NDArray[np.float64]
 
+#: The routes of the significance test's loss comparison, in the order every caller passes
+#: them (``tendonkit.diagnose.engine.try_effect``): the free run, the one-step prediction,
+#: the prediction over ``prediction_horizon`` samples.
+ROUTES = ("simulation", "prediction", "horizon")
+
 #: Experiments that separate two causes that explain the data about equally.
 DISCRIMINATING: dict[frozenset[str], str] = {
     frozenset({"coulomb_friction", "backlash"}): (
@@ -585,11 +590,8 @@ def more_data_factor(finding: dict[str, Any], alpha: float, n_findings: int) -> 
     beyond = test.get("linear_part") or {}
     routes = []
     counted = 0  # routes in the test's Bonferroni factor, whether or not they can gain
-    for name, r in (
-        ("simulation", test),
-        ("prediction", test.get("prediction") or {}),
-        ("horizon", test.get("horizon") or {}),
-    ):
+    for name in ROUTES:
+        r = test if name == "simulation" else (test.get(name) or {})
         counted += bool(r)
         # a route on which the extension's linear part decides gains nothing from more data
         if float(beyond.get(name, 0.0)) > float(r.get("p_value", 1.0)):

@@ -202,10 +202,10 @@ def _predict_recursive(model: Model, u: FloatArray, y: FloatArray, k: int) -> Fl
     rep = model.representation
     passes = [y]  # passes[0] = measurement
     # An ARX's input part (the offset, the input lags and the terms that read inputs only) is
-    # the same in every pass: computed once, k passes cost the output part only.
-    fixed = _arx_input_part(model, rep, u) if isinstance(rep, ARX) and k > 1 else None
+    # the same in every pass: prepared once, k passes cost the output part only.
+    arx = _ArxPasses.prepare(model, rep, u) if isinstance(rep, ARX) else None
     for j in range(1, k + 1):
-        passes.append(_one_pass(model, rep, u, passes, j, fixed))
+        passes.append(_one_pass(model, rep, u, passes, j, arx))
     return passes[k].copy()
 
 
@@ -217,46 +217,50 @@ def _past(x: FloatArray, lag: int, first: FloatArray) -> FloatArray:
     return out
 
 
-def _split_terms(model: Model, rep: ARX) -> tuple[list[int], list[int]]:
-    """Indices of the ARX's terms that read inputs only, and of those that read an output."""
-    outputs = set(model.output_names)
-    fixed: list[int] = []
-    moving: list[int] = []
-    for i, t in enumerate(rep.terms):
-        (moving if t.signals & outputs else fixed).append(i)
-    return fixed, moving
-
-
-def _terms_part(
-    model: Model, rep: ARX, which: list[int], u: FloatArray, past_y: Any
-) -> FloatArray | None:
-    """``Σ c_i term_i`` over the terms ``which`` of an ARX (None without them)."""
-    if not which or rep.term_coefficients is None:
-        return None
-    ct = CompiledTerms([rep.terms[i] for i in which])
+def _terms_sum(
+    model: Model, ct: CompiledTerms, coef: FloatArray, u: FloatArray, past_y: Any
+) -> FloatArray:
+    """``Σ c_i term_i`` of an ARX's terms ``ct`` (coefficient rows ``coef``) for every t."""
     vals = []
     for name, lag in ct.keys:
         if name in model.output_names:
             vals.append(past_y(lag)[:, model.output_names.index(name)])
         else:
             vals.append(_past(u, lag, u[0])[:, model.input_names.index(name)])
-    return np.asarray(ct.evaluate(np.array(vals)).T @ rep.term_coefficients[which])
+    return np.asarray(ct.evaluate(np.array(vals)).T @ coef)
 
 
-def _arx_input_part(model: Model, rep: ARX, u: FloatArray) -> FloatArray:
-    """What an ARX's prediction takes from the inputs alone, for every t: the offset, the
-    input lags and the terms that read no output (pass-independent)."""
-    _, G, off = _arx_parts(model, rep)
-    part = np.zeros((u.shape[0], rep.A[0].shape[0] if rep.A else len(model.output_names)))
-    part += off
-    for lag, Gl in enumerate(G):
-        if np.any(Gl):
-            part += _past(u, lag, u[0]) @ Gl.T
-    if rep.terms:
-        terms = _terms_part(model, rep, _split_terms(model, rep)[0], u, None)
-        if terms is not None:
-            part += terms
-    return part
+@dataclasses.dataclass(frozen=True)
+class _ArxPasses:
+    """An ARX's prediction split for :func:`_predict_recursive`: ``fixed``, what it takes from
+    the inputs alone for every t (the offset, the input lags, the terms that read no output),
+    and the terms that read an output (``moving``, with their coefficient rows), evaluated
+    again in every pass."""
+
+    fixed: FloatArray
+    moving: CompiledTerms | None
+    coef: FloatArray | None
+
+    @classmethod
+    def prepare(cls, model: Model, rep: ARX, u: FloatArray) -> _ArxPasses:
+        _, G, off = _arx_parts(model, rep)
+        fixed = np.zeros((u.shape[0], len(model.output_names))) + off
+        for lag, Gl in enumerate(G):
+            if np.any(Gl):
+                fixed += _past(u, lag, u[0]) @ Gl.T
+        coefs = rep.term_coefficients
+        if not rep.terms or coefs is None:
+            return cls(fixed, None, None)
+        outputs = set(model.output_names)
+        reads = [bool(t.signals & outputs) for t in rep.terms]
+        inputs_only = [i for i, r in enumerate(reads) if not r]
+        moving = [i for i, r in enumerate(reads) if r]
+        if inputs_only:
+            ct = CompiledTerms([rep.terms[i] for i in inputs_only])
+            fixed += _terms_sum(model, ct, coefs[inputs_only], u, None)
+        if not moving:
+            return cls(fixed, None, None)
+        return cls(fixed, CompiledTerms([rep.terms[i] for i in moving]), coefs[moving])
 
 
 def _one_pass(
@@ -265,10 +269,10 @@ def _one_pass(
     u: FloatArray,
     passes: list[FloatArray],
     j: int,
-    fixed: FloatArray | None = None,
+    arx: _ArxPasses | None = None,
 ) -> FloatArray:
-    """Prediction ``ŷ(t | t-j)`` for every t, vectorised over t (``fixed``: an ARX's input
-    part, :func:`_arx_input_part`, when the caller has it)."""
+    """Prediction ``ŷ(t | t-j)`` for every t, vectorised over t (``arx``: an ARX's parts,
+    :class:`_ArxPasses`, when the caller has them)."""
 
     def past_y(lag: int) -> FloatArray:
         return _past(passes[j - lag] if lag < j else passes[0], lag, passes[0][0])
@@ -277,15 +281,13 @@ def _one_pass(
         return _past(u, lag, u[0])
 
     if isinstance(rep, ARX):
-        if fixed is None:
-            fixed = _arx_input_part(model, rep, u)
-        pred = fixed.copy()
+        if arx is None:
+            arx = _ArxPasses.prepare(model, rep, u)
+        pred = arx.fixed.copy()
         for i, Ai in enumerate(rep.A, start=1):
             pred -= past_y(i) @ Ai.T
-        if rep.terms:
-            terms = _terms_part(model, rep, _split_terms(model, rep)[1], u, past_y)
-            if terms is not None:
-                pred += terms
+        if arx.moving is not None and arx.coef is not None:
+            pred += _terms_sum(model, arx.moving, arx.coef, u, past_y)
         L = arx_max_lag(rep, len(model.inputs))
         pred[:L] = passes[0][:L]
         return pred

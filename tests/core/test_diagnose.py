@@ -1048,6 +1048,9 @@ def test_a_gain_that_is_not_significant_says_how_much_more_data_would_show_it():
     assert factor is not None and 1.0 < factor < 20.0
     longer = loss_test(*losses(int(np.ceil(3 * factor * 1500))), margin=0.02)
     assert 3 * longer.p_value < 0.01  # three times the estimate: significant after Holm
+    # the test's own Bonferroni factor over its routes (held-out, direct) asks for more data
+    four = more_data_factor({**finding, "test": {**finding["test"], "routes": 4}}, 0.01, 3)
+    assert four is not None and four > factor
     # pointing the wrong way: no estimate; the note for a diagnosis that names nothing
     assert (
         more_data_factor({**finding, "test": {**finding["test"], "log_ratio": -1.0}}, 0.01, 3)

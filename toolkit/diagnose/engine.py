@@ -663,8 +663,9 @@ def try_effect(
     # directly, with a positive training gain).  For the others it is screened like every
     # route and, where the training data keep it, counts in the factor with p = 1: never
     # below the p-value the computed route would give, so the choice by the validation gain
-    # keeps the level.
-    present = ref.horizon_loss is not None and test.n_batches < MAX_BATCHES
+    # keeps the level.  An extension that cannot predict (output blocks) has no such route.
+    can_predict = pred is not None
+    present = ref.horizon_loss is not None and can_predict and test.n_batches < MAX_BATCHES
     computed = present and (could or (direct is not None and ext.train_gain > 0))
     deferred = present and not computed
     base_ahead = ref.horizon_loss if computed else None

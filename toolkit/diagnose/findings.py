@@ -606,7 +606,9 @@ def more_data_factor(finding: dict[str, Any], alpha: float, n_findings: int) -> 
         routes.append((t, int(nb) * int(r.get("batch_length", 1)), tau))
     if not any(t > 0 for t, _, _ in routes):
         return None
-    k = counted + (1 if test.get("direct") else 0)
+    # the test's own Bonferroni factor (routes the training screen dropped do not count;
+    # the held-out route and direct evidence do); older summaries lack it
+    k = int(test.get("routes") or counted + (1 if test.get("direct") else 0))
     p, p_adj = float(finding.get("p_value", 1.0)), float(finding.get("p_adjusted", 1.0))
     holm = p_adj / p if 0 < p and p_adj < 1.0 else float(max(n_findings, 1))
     level = alpha / (max(holm, 1.0) * max(k, 1))

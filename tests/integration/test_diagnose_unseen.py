@@ -16,7 +16,7 @@ curve is named as one cause.  A third, a two-inertia drive at 2 ms with both ang
 gap and a hardening in the coupling shaft are named, and nothing where there is neither.  A
 fourth, a hydraulic cylinder at 2 ms (:func:`cylinder`), written as a probe after all of these,
 checks that a dead time longer than the input-delay effect's grid is named where no linear
-model without it fits (on its probe, 13 of 18 single effects named: docs/diagnose.md).
+model without it fits (on its probe, 15 of 18 single effects named: docs/diagnose.md).
 
 The score (named right / cases) is printed by ``pytest -s`` and recorded in docs/diagnose.md;
 the cases that miss are listed in ``MISSES`` with what was named instead, as expected failures
@@ -333,7 +333,7 @@ def test_a_dead_time_no_linear_model_without_it_fits_is_named():
     top = ", ".join(f"{f.effect} {f.gain:+.2f} (p_adj {f.p_adjusted:.1e})" for f in d.findings[:3])
     check = d.to_dict()["baseline"]["check"]
     print(f"\ncylinder dead time {delay}: causes {d.causes}; {top}; check {check}")
-    assert check["reference_behind_dead_times"]["used"] and check["fallback"], check
+    assert check["reference_behind_dead_times"]["decides"] and check["fallback"], check
     assert d.causes[:1] == ("input_delay",), top
     assert d.best is not None and d.best.gain > 5.0
 

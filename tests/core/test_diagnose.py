@@ -1051,6 +1051,9 @@ def test_a_gain_that_is_not_significant_says_how_much_more_data_would_show_it():
     # the test's own Bonferroni factor over its routes (held-out, direct) asks for more data
     four = more_data_factor({**finding, "test": {**finding["test"], "routes": 4}}, 0.01, 3)
     assert four is not None and four > factor
+    # a route the training screen left out of the test gives no estimate
+    screened = {**finding["test"], "routes_screened": {"kept": ["prediction"]}}
+    assert more_data_factor({**finding, "test": screened}, 0.01, 3) is None
     # pointing the wrong way: no estimate; the note for a diagnosis that names nothing
     assert (
         more_data_factor({**finding, "test": {**finding["test"], "log_ratio": -1.0}}, 0.01, 3)

@@ -15,7 +15,7 @@ curve is named as one cause.  A third, a two-inertia drive at 2 ms with both ang
 (:func:`two_inertia`), written after the effects *between two bodies* were built, checks that a
 gap and a hardening in the coupling shaft are named, and nothing where there is neither.  A
 fourth, a hydraulic cylinder at 2 ms (:func:`cylinder`), written as a probe after all of these,
-checks that a dead time longer than the input-delay effect's grid is named where no linear
+checks that a dead time longer than the input-delay effect's whole-sample grid is named where no linear
 model without it fits (on its probe, 15 of 18 single effects named: docs/diagnose.md).
 
 The score (named right / cases) is printed by ``pytest -s`` and recorded in docs/diagnose.md;
@@ -327,15 +327,31 @@ def test_a_dead_time_no_linear_model_without_it_fits_is_named():
     found (``reference_behind_dead_times``): the ARX is biased, the fallback is N4SID of the
     order the dynamics need behind the dead time, and the delay is named (+19.3, the lag
     +14.9 the runner-up)."""
+    from tendonkit.cli.diagnose import render_diagnosis
+    from tendonkit.diagnose.engine import auto_baseline, check_baseline
+
     delay = int(np.random.default_rng(961).integers(10, 21))
     train, valid = cylinder(delay, 961), cylinder(delay, 1461)
     d = diagnose(train, valid)
     top = ", ".join(f"{f.effect} {f.gain:+.2f} (p_adj {f.p_adjusted:.1e})" for f in d.findings[:3])
-    check = d.to_dict()["baseline"]["check"]
+    summary = d.to_dict()
+    check = summary["baseline"]["check"]
     print(f"\ncylinder dead time {delay}: causes {d.causes}; {top}; check {check}")
-    assert check["reference_behind_dead_times"]["decides"] and check["fallback"], check
+    behind = check["reference_behind_dead_times"]
+    assert behind["decides"] and check["fallback"] and not check["error_ratio"] > 2.5, check
+    # the fallback and the effects' candidates at the order N4SID has behind the dead time
+    assert check["reference_options"]["order"] == behind["order"] >= 1
     assert d.causes[:1] == ("input_delay",), top
     assert d.best is not None and d.best.gain > 5.0
+    # at one order the delay is clearly ahead of the lag (at N4SID's automatic order, each
+    # candidate at its own, by 0.02-0.07 points)
+    assert d.findings[0].gain - d.findings[1].gain > 2.0, top
+    assert "behind its dead times (valve" in render_diagnosis(summary)
+    # without dead times (none found, or zero samples) the check is the one it always was
+    _, _, selected, _ = auto_baseline(train, {})
+    plain = check_baseline(selected, train, "arx", {"valve": 0})
+    assert plain is not None and "reference_behind_dead_times" not in plain
+    assert not plain["biased"] and plain["error_ratio"] == check["error_ratio"]
 
 
 def _bench(name: str) -> ModuleType:

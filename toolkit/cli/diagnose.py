@@ -234,10 +234,19 @@ def render_diagnosis(summary: dict[str, Any]) -> str:
             )
         if check["fallback"] and check.get("pem", {}).get("fallback"):
             what += "; then replaced by pem's model (next note)"
+        behind = check.get("reference_behind_dead_times") or {}
+        if behind.get("decides"):
+            dead = ", ".join(f"{n} {d:g}" for n, d in behind["dead_times"].items())
+            against = (
+                f"{behind['error_ratio']:.1f}x that of a linear n4sid model behind its dead "
+                f"times ({dead} samples; {check['error_ratio']:.1f}x without them, where "
+                "n4sid fails too)"
+            )
+        else:
+            against = f"{check['error_ratio']:.1f}x that of a linear n4sid model"
         lines.append(
             f"note: the {check['requested_method']} baseline's training free-run error is "
-            f"{check['error_ratio']:.1f}x that of a linear n4sid model (output noise biases an "
-            f"equation-error fit); {what}."
+            f"{against} (output noise biases an equation-error fit); {what}."
         )
     pem = check.get("pem") if check else None
     if pem and pem["fallback"]:

@@ -569,8 +569,8 @@ MORE_DATA_CAP = 20.0
 def more_data_factor(finding: dict[str, Any], alpha: float, n_findings: int) -> float | None:
     """Roughly how many times as much validation data would make this finding significant.
 
-    For each loss route (free run, one-step prediction, prediction over the horizon) the
-    one-sided t-statistic of the batch log-ratios, ``t = (mean + log(1 - margin)) /
+    For each loss route the test kept (free run, one-step prediction, prediction over the
+    horizon; ``routes_screened``) the one-sided t-statistic of the batch log-ratios, ``t = (mean + log(1 - margin)) /
     std_error``, grows with the square root
     of the record's length if the gain holds.  A record ``K`` times as long has
     ``clip(K·n / (4 τ), 5, 50)`` batches (:func:`tendonkit.diagnose.stats.loss_test`; the
@@ -588,9 +588,12 @@ def more_data_factor(finding: dict[str, Any], alpha: float, n_findings: int) -> 
 
     test = finding.get("test") or {}
     beyond = test.get("linear_part") or {}
+    kept = (test.get("routes_screened") or {}).get("kept", ROUTES)
     routes = []
     counted = 0  # routes in the test's Bonferroni factor, whether or not they can gain
     for name in ROUTES:
+        if name not in kept:  # the training screen left it out of the test
+            continue
         r = test if name == "simulation" else (test.get(name) or {})
         counted += bool(r)
         # a route on which the extension's linear part decides gains nothing from more data

@@ -235,13 +235,20 @@ def render_diagnosis(summary: dict[str, Any]) -> str:
         if check["fallback"] and check.get("pem", {}).get("fallback"):
             what += "; then replaced by pem's model (next note)"
         behind = check.get("reference_behind_dead_times") or {}
-        if behind.get("decides"):
+        if behind.get("decides") and "dead_times" in behind:
             dead = ", ".join(f"{n} {d:g}" for n, d in behind["dead_times"].items())
+            order = (check.get("reference_options") or {}).get("order")
             against = (
-                f"{behind['error_ratio']:.1f}x that of a linear n4sid model behind its dead "
-                f"times ({dead} samples; {check['error_ratio']:.1f}x without them, where "
-                "n4sid fails too)"
+                f"{behind['error_ratio']:.1f}x that of a linear n4sid model behind the dead "
+                f"times found ({dead} samples) and {check['error_ratio']:.1f}x that of one "
+                "without them (n4sid's automatic order cannot hold them)"
             )
+            if check["fallback"] and order:
+                what = what.replace(
+                    "against n4sid instead",
+                    f"against n4sid of order {order} without the dead times instead (left to "
+                    "the diagnosis)",
+                )
         else:
             against = f"{check['error_ratio']:.1f}x that of a linear n4sid model"
         lines.append(

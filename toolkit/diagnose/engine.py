@@ -2000,6 +2000,8 @@ def _behind_dead_times(
         e_delayed = float(np.mean(_loss(y, simulate_all(delayed, train))))
     except _NUMERICAL_ERRORS:
         return ident, ref, {"dead_times": dead, "error": "N4SID behind them failed"}
+    if not math.isfinite(e_delayed):
+        return ident, ref, {"dead_times": dead, "error": "N4SID behind them diverged"}
     ratio = e_base / e_delayed if e_delayed > 0 else math.inf
     behind = {
         "dead_times": dead,

@@ -570,9 +570,9 @@ def more_data_factor(finding: dict[str, Any], alpha: float, n_findings: int) -> 
     """Roughly how many times as much validation data would make this finding significant.
 
     For each loss route the test kept (free run, one-step prediction, prediction over the
-    horizon; ``routes_screened``) the one-sided t-statistic of the batch log-ratios, ``t = (mean + log(1 - margin)) /
-    std_error``, grows with the square root
-    of the record's length if the gain holds.  A record ``K`` times as long has
+    horizon; ``routes_screened``) the one-sided t-statistic of the batch log-ratios,
+    ``t = (mean + log(1 - margin)) / std_error``, grows with the square root of the
+    record's length if the gain holds.  A record ``K`` times as long has
     ``clip(K·n / (4 τ), 5, 50)`` batches (:func:`tendonkit.diagnose.stats.loss_test`; the
     degrees of freedom of :func:`tendonkit.diagnose.stats.obm_dof`), and needs ``t·√K`` above
     the t quantile of the route's share of the level after the Holm

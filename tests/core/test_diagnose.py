@@ -1673,3 +1673,39 @@ def test_a_gate_on_a_negative_held_input_is_named_between_its_levels():
     (th,) = d.best.params["threshold"]
     assert -2.5 < th < -2.0  # signed: the valve acts below it
     assert d.best.gain > 20.0
+
+
+def test_the_bias_check_behind_dead_times_keeps_the_check_when_its_fit_fails(monkeypatch):
+    """check_baseline with dead times: N4SID behind them judges a second time and is
+    recorded; where its fit fails, the record says so and the check is the plain one (the
+    automatic N4SID, its ratio), not dropped (a dropped check also skipped the pem check)."""
+    import tendonkit as tk
+    from tendonkit.diagnose import engine
+
+    rng = np.random.default_rng(3)
+    n, dead = 2000, 12
+    u = lfilter([1.0], [1.0, -0.9], rng.standard_normal(n))
+    y = lfilter([0.0, 0.2], [1.0, -0.9], np.concatenate([np.zeros(dead), u[:-dead]]))
+    y = y + 0.05 * y.std() * rng.standard_normal(n)
+    exp = Experiment(t=np.arange(n, dtype=float), u=u[:, None], y=y[:, None], name="dead")
+    train = Dataset(inputs=("u",), outputs=("y",), experiments=(exp,), dt=1.0)
+    arx = tk.identify(train, "arx", na=2, nb=2, nk=dead + 1)
+    check = engine.check_baseline(arx, train, "arx", {"u": dead})
+    assert check is not None and not check["biased"]
+    behind = check["reference_behind_dead_times"]
+    assert behind["dead_times"] == {"u": 12.0} and behind["decides"] is False
+    assert behind["reference_fit"] > 90.0  # the process behind its dead time: one state
+
+    def failing(refit, blocks):
+        def build(data):
+            raise np.linalg.LinAlgError("singular")
+
+        return build
+
+    monkeypatch.setattr(engine, "refit_with_input_blocks", failing)
+    failed = engine.check_baseline(arx, train, "arx", {"u": dead})
+    assert failed is not None and failed["reference_behind_dead_times"]["error"]
+    assert "decides" not in failed["reference_behind_dead_times"]
+    assert (
+        failed["error_ratio"] == check["error_ratio"] and "order" not in failed["reference_options"]
+    )

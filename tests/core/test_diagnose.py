@@ -1704,8 +1704,18 @@ def test_the_bias_check_behind_dead_times_keeps_the_check_when_its_fit_fails(mon
 
     monkeypatch.setattr(engine, "refit_with_input_blocks", failing)
     failed = engine.check_baseline(arx, train, "arx", {"u": dead})
-    assert failed is not None and failed["reference_behind_dead_times"]["error"]
-    assert "decides" not in failed["reference_behind_dead_times"]
-    assert (
-        failed["error_ratio"] == check["error_ratio"] and "order" not in failed["reference_options"]
-    )
+    assert failed is not None and not failed["biased"]
+    record = failed["reference_behind_dead_times"]
+    assert "failed" in record["error"] and not {"decides", "error_ratio"} & set(record)
+
+    def diverging(refit, blocks):
+        def build(data):
+            model = refit(data)
+            rep = model.representation
+            return model.replace(representation=dataclasses.replace(rep, A=3.0 * rep.A))
+
+        return build
+
+    monkeypatch.setattr(engine, "refit_with_input_blocks", diverging)
+    record = engine.check_baseline(arx, train, "arx", {"u": dead})["reference_behind_dead_times"]
+    assert "diverged" in record["error"] and not {"decides", "error_ratio"} & set(record)

@@ -241,19 +241,24 @@ def render_diagnosis(summary: dict[str, Any]) -> str:
             against = (
                 f"{behind['error_ratio']:.1f}x that of a linear n4sid model behind the dead "
                 f"times found ({dead} samples) and {check['error_ratio']:.1f}x that of one "
-                "without them (n4sid's automatic order cannot hold them)"
+                "without them, whose automatic order cannot hold them"
             )
-            if check["fallback"] and order:
-                what = what.replace(
-                    "against n4sid instead",
-                    f"against n4sid of order {order} without the dead times instead (left to "
-                    "the diagnosis)",
+            if check["fallback"]:
+                instead = (
+                    f"n4sid of order {order} without the dead times instead (left to the diagnosis)"
+                    if order
+                    else "n4sid's automatic order instead (n4sid of its order behind the dead "
+                    "times could not be identified without them)"
                 )
+                what = what.replace("n4sid instead", instead)
         else:
-            against = f"{check['error_ratio']:.1f}x that of a linear n4sid model"
+            against = (
+                f"{check['error_ratio']:.1f}x that of a linear n4sid model (output noise "
+                "biases an equation-error fit)"
+            )
         lines.append(
             f"note: the {check['requested_method']} baseline's training free-run error is "
-            f"{against} (output noise biases an equation-error fit); {what}."
+            f"{against}; {what}."
         )
     pem = check.get("pem") if check else None
     if pem and pem["fallback"]:

@@ -1998,15 +1998,16 @@ def _behind_dead_times(
         with without_training_fit():
             delayed = refit_with_input_blocks(ident.identify, blocks)(train)
         e_delayed = float(np.mean(_loss(y, simulate_all(delayed, train))))
+        fit_delayed = mean_fit(delayed, train)
     except _NUMERICAL_ERRORS:
         return ident, ref, {"dead_times": dead, "error": "N4SID behind them failed"}
-    if not math.isfinite(e_delayed):
+    if not math.isfinite(fit_delayed):  # (_loss caps a diverged run: its ratio would be ~0)
         return ident, ref, {"dead_times": dead, "error": "N4SID behind them diverged"}
     ratio = e_base / e_delayed if e_delayed > 0 else math.inf
     behind = {
         "dead_times": dead,
         "error_ratio": ratio,
-        "reference_fit": mean_fit(delayed, train),
+        "reference_fit": fit_delayed,
         "decides": bool(ratio > BIAS_RATIO),
     }
     order = getattr(delayed.representation, "n_states", None)

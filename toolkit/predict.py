@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ._kernel import state_loop
-from ._simulate_arx import _arx_parts, arx_max_lag
+from ._simulate_arx import _arx_parts, _forced, arx_max_lag
 from .errors import DataError, SimulationError
 from .schema import ARX, Model, SparseMap, StateSpace
 from .simulate import (
@@ -88,8 +88,10 @@ def _predict_ss_terms(
     ua = np.hstack([u, theta])
     K = rep.K if rep.K is not None else fitted_kalman_gain(lin, ua, y)
     Xp = _one_step_states(lin, K, ua, y)
+    uD = u @ rep.D.T
+    first = Xp[:-1] @ rep.C.T + uD + y0
     if k == 1:
-        return Xp[:-1] @ rep.C.T + u @ rep.D.T + y0
+        return first
     ct = CompiledTerms(rep.terms)
     if ct.stateful:
         raise SimulationError(
@@ -103,7 +105,14 @@ def _predict_ss_terms(
     # t-1 read each output at lag l as known at t-i: measured where l >= i, else the
     # prediction ŷ(t-1-l | t-i) of horizon i - l.
     states = Xp[:-1]
-    outs = [y_raw, states @ rep.C.T + u @ rep.D.T + y0]
+    outs = [y_raw, first]
+    uB = _past(u, 1, u[0]) @ rep.B.T
+    # the terms' input columns are the same in every pass
+    inputs = {
+        (name, lag): _past(u_raw, 1 + lag, u_raw[0])[:, names_in.index(name)]
+        for name, lag in ct.keys
+        if name not in names_out
+    }
     for i in range(1, k):
         vals = []
         for name, lag in ct.keys:
@@ -111,12 +120,10 @@ def _predict_ss_terms(
                 src = outs[i - lag] if lag < i else y_raw
                 vals.append(_past(src, 1 + lag, y_raw[0])[:, names_out.index(name)])
             else:
-                vals.append(_past(u_raw, 1 + lag, u_raw[0])[:, names_in.index(name)])
+                vals.append(inputs[name, lag])
         theta = ct.evaluate(np.array(vals)).T
-        states = (
-            _past(states, 1, states[0]) @ rep.A.T + _past(u, 1, u[0]) @ rep.B.T + theta @ rep.E.T
-        )
-        outs.append(states @ rep.C.T + u @ rep.D.T + y0)
+        states = _past(states, 1, states[0]) @ rep.A.T + uB + theta @ rep.E.T
+        outs.append(states @ rep.C.T + uD + y0)
     out = outs[k].copy()
     out[: k - 1 + L] = y_raw[: k - 1 + L]
     return np.asarray(out)
@@ -244,10 +251,8 @@ class _ArxPasses:
     @classmethod
     def prepare(cls, model: Model, rep: ARX, u: FloatArray) -> _ArxPasses:
         _, G, off = _arx_parts(model, rep)
-        fixed = np.zeros((u.shape[0], len(model.output_names))) + off
-        for lag, Gl in enumerate(G):
-            if np.any(Gl):
-                fixed += _past(u, lag, u[0]) @ Gl.T
+        lags = len(G) - 1
+        fixed = _forced(np.vstack([np.repeat(u[:1], lags, 0), u]), G, off, lags, u.shape[0])
         coefs = rep.term_coefficients
         if not rep.terms or coefs is None:
             return cls(fixed, None, None)
@@ -269,7 +274,7 @@ def _one_pass(
     u: FloatArray,
     passes: list[FloatArray],
     j: int,
-    arx: _ArxPasses | None = None,
+    arx: _ArxPasses | None,
 ) -> FloatArray:
     """Prediction ``ŷ(t | t-j)`` for every t, vectorised over t (``arx``: an ARX's parts,
     :class:`_ArxPasses`, when the caller has them)."""
@@ -281,8 +286,7 @@ def _one_pass(
         return _past(u, lag, u[0])
 
     if isinstance(rep, ARX):
-        if arx is None:
-            arx = _ArxPasses.prepare(model, rep, u)
+        assert arx is not None  # prepared once by the caller
         pred = arx.fixed.copy()
         for i, Ai in enumerate(rep.A, start=1):
             pred -= past_y(i) @ Ai.T

@@ -222,8 +222,19 @@ def render_diagnosis(summary: dict[str, Any]) -> str:
             + (" — not the baseline diagnosed: see the fallback below" if replaced else "")
         )
     if check and check["biased"]:
+        behind = check.get("reference_behind_dead_times") or {}
+        dead_times = bool(behind.get("decides")) and "dead_times" in behind
+        order = (check.get("reference_options") or {}).get("order")
+        instead = (
+            "n4sid instead"
+            if not dead_times
+            else f"n4sid of order {order} without the dead times instead (left to the diagnosis)"
+            if order
+            else "n4sid's automatic order instead (n4sid of its order behind the dead times "
+            "could not be identified without them)"
+        )
         what = (
-            "diagnosed against n4sid instead"
+            f"diagnosed against {instead}"
             if check["fallback"]
             else "kept (--no-fallback); its gains may measure that bias"
         )
@@ -234,23 +245,13 @@ def render_diagnosis(summary: dict[str, Any]) -> str:
             )
         if check["fallback"] and check.get("pem", {}).get("fallback"):
             what += "; then replaced by pem's model (next note)"
-        behind = check.get("reference_behind_dead_times") or {}
-        if behind.get("decides") and "dead_times" in behind:
+        if dead_times:
             dead = ", ".join(f"{n} {d:g}" for n, d in behind["dead_times"].items())
-            order = (check.get("reference_options") or {}).get("order")
             against = (
                 f"{behind['error_ratio']:.1f}x that of a linear n4sid model behind the dead "
                 f"times found ({dead} samples) and {check['error_ratio']:.1f}x that of one "
                 "without them, whose automatic order cannot hold them"
             )
-            if check["fallback"]:
-                instead = (
-                    f"n4sid of order {order} without the dead times instead (left to the diagnosis)"
-                    if order
-                    else "n4sid's automatic order instead (n4sid of its order behind the dead "
-                    "times could not be identified without them)"
-                )
-                what = what.replace("n4sid instead", instead)
         else:
             against = (
                 f"{check['error_ratio']:.1f}x that of a linear n4sid model (output noise "

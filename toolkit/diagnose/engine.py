@@ -666,14 +666,12 @@ def try_effect(
     # route and, where the training data keep it, counts in the factor with p = 1: never
     # below the p-value the computed route would give, so the choice by the validation gain
     # keeps the level.  An extension that cannot predict (output blocks) has no such route.
-    can_predict = pred is not None
-    present = ref.horizon_loss is not None and can_predict and test.n_batches < MAX_BATCHES
+    present = ref.horizon_loss is not None and pred is not None and test.n_batches < MAX_BATCHES
     computed = present and (could or (direct is not None and ext.train_gain > 0))
     deferred = present and not computed
-    base_ahead = ref.horizon_loss if computed else None
-    ahead = prediction_losses(ext.model, valid, ref.horizon) if base_ahead is not None else None
-    if base_ahead is not None and ahead is not None:
-        htest = loss_test(base_ahead, ahead, margin=delta)
+    ahead = prediction_losses(ext.model, valid, ref.horizon) if computed else None
+    if ref.horizon_loss is not None and ahead is not None:
+        htest = loss_test(ref.horizon_loss, ahead, margin=delta)
         loss_routes["horizon"] = htest.p_value
         test_info["horizon"] = {**htest.to_dict(), "horizon": ref.horizon}
     if ext.linear_part is not None:
@@ -683,7 +681,7 @@ def try_effect(
         test_info["linear_part"] = beyond
         loss_routes = {r: max(p, beyond[r]) for r, p in loss_routes.items()}
     # The screen can only lower a p-value below alpha where a route is below it already.
-    screened = list(loss_routes) + ["horizon"] * deferred
+    screened = list(loss_routes) + (["horizon"] if deferred else [])
     screen = (
         screen_routes(ctx, ext.model, screened, settings, ref.horizon)
         if min(loss_routes.values()) < settings.alpha
@@ -1952,16 +1950,15 @@ def check_baseline(
     try:
         ident = identifiers().get("n4sid").create(offset=at_point)
         ref = ident.identify(train)
-        y = aligned(baseline, train).y
-        e_base = float(np.mean(_loss(y, simulate_all(baseline, train))))
-        e_ref = float(np.mean(_loss(y, simulate_all(ref, train))))
+        e_base, _ = _training_error(baseline, train)
+        e_ref, fit_ref = _training_error(ref, train)
     except _NUMERICAL_ERRORS:
         return None
     ratio = e_base / e_ref if e_ref > 0 else math.inf
-    blocks = [Block("delay", n, {"samples": float(d)}) for n, d in (dead or {}).items() if d > 0]
+    delays = {n: float(d) for n, d in (dead or {}).items() if d > 0}
     behind = None
-    if blocks and not ratio > BIAS_RATIO:
-        ident, ref, behind = _behind_dead_times(ident, ref, blocks, train, y, e_base, at_point)
+    if delays and not ratio > BIAS_RATIO:
+        ident, ref, behind = _behind_dead_times(ident, ref, delays, train, e_base, at_point)
     options: dict[str, Any] = {"offset": at_point}
     if behind is not None and "order" in behind:
         options["order"] = behind["order"]
@@ -1974,7 +1971,7 @@ def check_baseline(
         "error_ratio": ratio,
         "threshold": BIAS_RATIO,
         "biased": bool(ratio > BIAS_RATIO or (behind or {}).get("decides", False)),
-        "reference_fit": mean_fit(ref, train),
+        "reference_fit": mean_fit(ref, train) if "order" in options else fit_ref,
         "_identifier": ident,
         "_model": ref,
     }
@@ -1983,22 +1980,20 @@ def check_baseline(
 def _behind_dead_times(
     ident: Any,
     ref: Model,
-    blocks: list[Block],
+    dead: dict[str, float],
     train: Dataset,
-    y: FloatArray,
     e_base: float,
     at_point: bool,
 ) -> tuple[Any, Model, dict[str, Any]]:
     """:func:`check_baseline`'s second judge: N4SID identified behind the dead times
-    (``blocks``), and the fallback's identifier and model — N4SID without the dead times, of
-    the order it has behind them where it decides the bias (``ident``, ``ref`` as they are
-    elsewhere or where that fit fails)."""
-    dead = {b.signal: b.params["samples"] for b in blocks}
+    (``dead``, samples per input), and the fallback's identifier and model — N4SID without
+    the dead times, of the order it has behind them where it decides the bias (``ident``,
+    ``ref`` as they are elsewhere or where that fit fails)."""
+    blocks = [Block("delay", n, {"samples": d}) for n, d in dead.items()]
     try:
         with without_training_fit():
             delayed = refit_with_input_blocks(ident.identify, blocks)(train)
-        e_delayed = float(np.mean(_loss(y, simulate_all(delayed, train))))
-        fit_delayed = mean_fit(delayed, train)
+        e_delayed, fit_delayed = _training_error(delayed, train)
     except _NUMERICAL_ERRORS:
         return ident, ref, {"dead_times": dead, "error": "N4SID behind them failed"}
     if not math.isfinite(fit_delayed):  # (_loss caps a diverged run: its ratio would be ~0)

@@ -70,7 +70,10 @@ def options_dict(options: Any) -> dict[str, Any]:
     return out
 
 
+@functools.cache
 def _version(plugin_module: str) -> str:
+    """The installed version of the package a plugin lives in (``importlib.metadata`` scans
+    every distribution on the path: about a millisecond a call, once per identified model)."""
     top = plugin_module.split(".")[0]
     try:
         return metadata.version(top)

@@ -472,7 +472,11 @@ def _ss_x0(
         return np.zeros(n) if rep.x0 is None else rep.x0
     assert y is not None
     if rep.terms and rep.E is not None and model is not None:
-        # Θ from the measured outputs acts as a known extra input for the initial-state fit.
+        # Θ from the measured outputs acts as a known extra input for the initial-state fit,
+        # which reads the first ``window`` samples only: Θ is causal (a lag repeats the first
+        # sample, an operator with a memory runs from it), so it is evaluated on those alone.
+        N = _x0_samples(n, u.shape[0], window)
+        u, y = u[:N], y[:N]
         theta = ss_theta_measured(model, u, y)
         nt = rep.E.shape[1]
         lin = StateSpace(
@@ -581,6 +585,11 @@ def _sim_ss_terms(
     return Y[L:]
 
 
+def _x0_samples(n: int, available: int, window: int | None) -> int:
+    """How many samples :func:`estimate_x0` fits an ``n``-state initial state on."""
+    return min(available, window or max(10 * n, 50))
+
+
 def estimate_x0(
     rep: StateSpace, u: FloatArray, y: FloatArray, window: int | None = None
 ) -> FloatArray:
@@ -589,7 +598,7 @@ def estimate_x0(
     A model with an operating point (``u0``, ``y0``) is fitted on the deviations from it.
     """
     n = rep.n_states
-    N = min(u.shape[0], window or max(10 * n, 50))
+    N = _x0_samples(n, u.shape[0], window)
     du, y0 = _deviations(rep, u[:N])
     forced = ss_response(rep.A, rep.B, rep.C, rep.D, du, np.zeros(n)) + y0
     ny = rep.C.shape[0]

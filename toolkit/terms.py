@@ -18,6 +18,7 @@ Examples
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -413,6 +414,74 @@ def term_from_dict(data: Any, where: str, problems: list[str]) -> Term | None:
     return Term(tuple(f for f in factors if f is not None))
 
 
+@functools.lru_cache(maxsize=512)
+def _compiled_structure(terms: tuple[Term, ...]) -> dict[str, Any]:
+    """The read-only attributes of a :class:`CompiledTerms` for ``terms`` (cached)."""
+    keys: set[tuple[str, int]] = set()
+    for t in terms:
+        for f in t.factors:
+            for name in f.signals:
+                keys.add((name, f.lag))
+                if f.diff:
+                    keys.add((name, f.lag + f.diff))
+    ordered = tuple(sorted(keys, key=lambda k: (k[1], k[0])))
+    index = {k: i for i, k in enumerate(ordered)}
+    nt = len(terms)
+    mf = max((len(t.factors) for t in terms), default=0) or 1
+    out: dict[str, Any] = {"terms": terms, "keys": ordered}
+    for name in ("_cur", "_prev", "_cur2", "_prev2"):
+        out[name] = np.zeros((nt, mf), dtype=int)
+    for name in ("_hasdiff", "_hasminus", "_active"):
+        out[name] = np.zeros((nt, mf), dtype=bool)
+    out["_code"] = np.full((nt, mf), -1, dtype=int)
+    for name, fill in (("_power", 1.0), ("_scale", 1.0), ("_offset", 0.0), ("_param", 0.0),
+                       ("_param2", 0.0), ("_weight", 1.0)):  # fmt: skip
+        out[name] = np.full((nt, mf), fill)
+    for i, t in enumerate(terms):
+        for j, f in enumerate(t.factors):
+            out["_cur"][i, j] = index[(f.signal, f.lag)]
+            if f.diff:
+                out["_prev"][i, j] = index[(f.signal, f.lag + f.diff)]
+                out["_hasdiff"][i, j] = True
+            if f.minus:  # the ``minus`` signal's keys (current and differenced)
+                out["_cur2"][i, j] = index[(f.minus, f.lag)]
+                out["_prev2"][i, j] = index[(f.minus, f.lag + f.diff)]
+                out["_hasminus"][i, j] = True
+            out["_active"][i, j] = True
+            out["_code"][i, j] = _FN_CODES[f.fn]
+            for name, value in (("_power", f.power), ("_scale", f.scale), ("_offset", f.offset),
+                                ("_param", f.param), ("_param2", f.param2),
+                                ("_weight", f.weight)):  # fmt: skip
+                out[name][i, j] = value
+    out["_anydiff"], out["_anyminus"] = bool(out["_hasdiff"].any()), bool(out["_hasminus"].any())
+    code_of, power = out["_code"], out["_power"]
+    stateful_codes = [_FN_CODES[name] for name in STATEFUL]
+    # one group per function (and per exponent for powers: evaluating a group of equal
+    # exponents needs no search for them at every step)
+    groups: dict[tuple[int, float | None], tuple[NDArray[np.intp], ...]] = {}
+    for code in np.unique(code_of):
+        if code < 0 or code in stateful_codes:
+            continue
+        mask = code_of == code
+        if code == _FN_CODES["pow"]:
+            for p in np.unique(power[mask]):
+                groups[int(code), float(p)] = np.nonzero(mask & (power == p))
+        else:
+            groups[int(code), None] = np.nonzero(mask)
+    out["_groups"] = groups
+    # (term, factor) positions of the hysteresis operators, and their function names
+    out["_memory"] = [
+        (i, j, t.factors[j].fn)
+        for i, t in enumerate(terms)
+        for j in range(len(t.factors))
+        if t.factors[j].stateful
+    ]
+    for value in out.values():  # shared by every instance: read only
+        if isinstance(value, np.ndarray):
+            value.flags.writeable = False
+    return out
+
+
 class CompiledTerms:
     """Vectorised evaluator for a fixed list of terms.
 
@@ -422,73 +491,32 @@ class CompiledTerms:
     per time step, and regression code once for a whole record (batch = samples).
     """
 
+    terms: tuple[Term, ...]
+    keys: tuple[tuple[str, int], ...]
+    _cur: NDArray[np.int_]
+    _prev: NDArray[np.int_]
+    _cur2: NDArray[np.int_]
+    _prev2: NDArray[np.int_]
+    _hasdiff: NDArray[Any]
+    _hasminus: NDArray[Any]
+    _active: NDArray[np.bool_]
+    _code: NDArray[np.int_]
+    _power: FloatArray
+    _scale: FloatArray
+    _offset: FloatArray
+    _param: FloatArray
+    _param2: FloatArray
+    _weight: FloatArray
+    _anydiff: bool
+    _anyminus: bool
+    _groups: dict[tuple[int, float | None], tuple[NDArray[np.intp], ...]]
+    _memory: list[tuple[int, int, str]]
+
     def __init__(self, terms: Sequence[Term]) -> None:
-        self.terms = tuple(terms)
-        keys: set[tuple[str, int]] = set()
-        for t in self.terms:
-            for f in t.factors:
-                for name in f.signals:
-                    keys.add((name, f.lag))
-                    if f.diff:
-                        keys.add((name, f.lag + f.diff))
-        self.keys: tuple[tuple[str, int], ...] = tuple(sorted(keys, key=lambda k: (k[1], k[0])))
-        index = {k: i for i, k in enumerate(self.keys)}
-        nt = len(self.terms)
-        mf = max((len(t.factors) for t in self.terms), default=0) or 1
-        self._cur = np.zeros((nt, mf), dtype=int)
-        self._prev = np.zeros((nt, mf), dtype=int)
-        self._hasdiff = np.zeros((nt, mf), dtype=bool)
-        #: the ``minus`` signal's keys (current and differenced), where a factor has one
-        self._cur2 = np.zeros((nt, mf), dtype=int)
-        self._prev2 = np.zeros((nt, mf), dtype=int)
-        self._hasminus = np.zeros((nt, mf), dtype=bool)
-        self._active = np.zeros((nt, mf), dtype=bool)
-        self._code = np.full((nt, mf), -1, dtype=int)
-        self._power = np.ones((nt, mf))
-        self._scale = np.ones((nt, mf))
-        self._offset = np.zeros((nt, mf))
-        self._param = np.zeros((nt, mf))
-        self._param2 = np.zeros((nt, mf))
-        self._weight = np.ones((nt, mf))
-        for i, t in enumerate(self.terms):
-            for j, f in enumerate(t.factors):
-                self._cur[i, j] = index[(f.signal, f.lag)]
-                if f.diff:
-                    self._prev[i, j] = index[(f.signal, f.lag + f.diff)]
-                    self._hasdiff[i, j] = True
-                if f.minus:
-                    self._cur2[i, j] = index[(f.minus, f.lag)]
-                    self._prev2[i, j] = index[(f.minus, f.lag + f.diff)]
-                    self._hasminus[i, j] = True
-                self._active[i, j] = True
-                self._code[i, j] = _FN_CODES[f.fn]
-                self._power[i, j] = f.power
-                self._scale[i, j] = f.scale
-                self._offset[i, j] = f.offset
-                self._param[i, j] = f.param
-                self._param2[i, j] = f.param2
-                self._weight[i, j] = f.weight
-        self._anydiff, self._anyminus = bool(self._hasdiff.any()), bool(self._hasminus.any())
-        stateful_codes = [_FN_CODES[name] for name in STATEFUL]
-        # one group per function (and per exponent for powers: evaluating a group of equal
-        # exponents needs no search for them at every step)
-        self._groups: dict[tuple[int, float | None], tuple[NDArray[np.intp], ...]] = {}
-        for code in np.unique(self._code):
-            if code < 0 or code in stateful_codes:
-                continue
-            mask = self._code == code
-            if code == _FN_CODES["pow"]:
-                for p in np.unique(self._power[mask]):
-                    self._groups[int(code), float(p)] = np.nonzero(mask & (self._power == p))
-            else:
-                self._groups[int(code), None] = np.nonzero(mask)
-        #: (term, factor) positions of the hysteresis operators, and their function names
-        self._memory = [
-            (i, j, t.factors[j].fn)
-            for i, t in enumerate(self.terms)
-            for j in range(len(t.factors))
-            if t.factors[j].stateful
-        ]
+        # The index arrays depend on the terms alone and are only read: a search of candidate
+        # extensions compiles the same terms thousands of times, so they are built once
+        # (:func:`_compiled_structure`); each instance holds its own operators' state.
+        self.__dict__.update(_compiled_structure(tuple(terms)))
         self.reset()
 
     @property

@@ -72,6 +72,17 @@ def predict(model: Model, u: FloatArray, y: FloatArray, k: int = 1) -> FloatArra
     return _predict_recursive(model, ub, y, k)
 
 
+def predicts_ahead(model: Model) -> bool:
+    """Whether :func:`predict` takes ``model`` beyond one step (``k > 1``).
+
+    A state space whose terms hold an operator with a memory (play, bouc_wen, slew_lag)
+    predicts one step only: over more, the operator's state would have to be estimated at
+    every sample.  Every other structure :func:`predict` takes predicts any horizon.
+    """
+    rep = model.representation
+    return not (isinstance(rep, StateSpace) and any(t.stateful for t in rep.terms))
+
+
 def _predict_ss_terms(
     model: Model, rep: StateSpace, u: FloatArray, y: FloatArray, k: int
 ) -> FloatArray:
@@ -93,7 +104,7 @@ def _predict_ss_terms(
     if k == 1:
         return first
     ct = CompiledTerms(rep.terms)
-    if ct.stateful:
+    if not predicts_ahead(model):
         raise SimulationError(
             f"{k}-step prediction of a state space with terms with a memory (play, bouc_wen, slew_lag) would "
             "need their state estimated at every sample; use k=1 or a simulation."

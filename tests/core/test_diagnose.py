@@ -1260,6 +1260,49 @@ def test_the_third_route_predicts_over_a_horizon_where_the_free_run_has_few_batc
     assert spared.p_value == pytest.approx(2 * spared.test["p_value"])
 
 
+def test_an_extension_that_predicts_one_step_only_has_no_third_route():
+    """A state space whose terms hold an operator with a memory (a play of the input, as the
+    extensions of an N4SID fallback add) predicts one step but not fifteen: the route over the
+    horizon is not there, so it is neither screened on the training data (the screen would
+    be lost) nor counted with p = 1 in the finding's factor (a route it can never have)."""
+    from tendonkit.diagnose.engine import Context, score_baseline, try_effect
+    from tendonkit.diagnose.residuals import analyse
+    from tendonkit.manager import identifiers
+    from tendonkit.predict import predicts_ahead
+    from tendonkit.realize import arx_to_state_space
+    from tendonkit.terms import Factor, Term
+
+    train, valid = (_noisy_process(s, pole=0.995, band=0.99) for s in (1, 2))
+    arx = identifiers().get("arx").create(na=1, nb=1, nk=1).identify(train)
+
+    def state_space(a: float, b: float, terms: tuple = ()):
+        rep = dataclasses.replace(arx.representation, A=(np.array([[a]]),), B=(np.array([[b]]),))
+        ss = arx_to_state_space(rep, 1)
+        if terms:  # an operator that does not act (E = 0): the dynamics stay the truth's
+            ss = dataclasses.replace(ss, terms=terms, E=np.zeros((ss.A.shape[0], len(terms))))
+        return arx.replace(representation=ss)
+
+    off = state_space(-0.985, 0.03)
+    play = (Term((Factor("u", fn="play", param=0.1),)),)
+    truth = state_space(-0.995, 0.01, play)
+    assert predicts_ahead(state_space(-0.995, 0.01)) and not predicts_ahead(truth)
+    settings = Settings(0.01, 0.02, 0.25, 0.8, 0, ("actuator_lag",), {}, False)
+    ctx = Context(train=train, baseline=off, identifier=None, residuals=analyse(off, train))
+    ref = score_baseline(off, valid)
+    assert ref.horizon == 15 and ref.horizon_loss is not None  # the baseline has the route
+    for min_gain in (0.25, 100.0):  # a finding that could name a cause, and one that cannot
+        small = dataclasses.replace(settings, min_gain=min_gain)
+        trial = try_effect(_Truth(truth), "actuator_lag", ctx, ref, valid, small)
+        assert not isinstance(trial, str)
+        assert trial.test["n_batches"] < 50 and trial.prediction_loss is not None
+        assert "horizon" not in trial.test and trial.horizon_loss is None
+        kept = trial.test["routes_screened"]["kept"]
+        assert "horizon" not in trial.test["routes_screened"]["training_p_values"]
+        assert trial.test["routes"] == len(kept) and kept == ["simulation", "prediction"]
+        routes = (trial.test["p_value"], trial.test["prediction"]["p_value"])
+        assert trial.p_value == pytest.approx(min(1.0, 2 * min(routes)))
+
+
 def test_the_prediction_horizon_reads_the_record_length_only():
     """``n / 200`` samples (50 batches of 4 horizons), at most a tenth of the shortest
     experiment, at least one step."""

@@ -66,7 +66,7 @@ from ..metrics import fit
 from ..output_error import free_parameters
 from ..output_error import refine as refine_by_simulation
 from ..parallel import map_tasks
-from ..predict import predict
+from ..predict import predict, predicts_ahead
 from ..schema import ARX, Block, Model, StateSpace
 from ..simulate import aligned, initial_span
 from .effect import (
@@ -665,8 +665,14 @@ def try_effect(
     # directly, with a positive training gain).  For the others it is screened like every
     # route and, where the training data keep it, counts in the factor with p = 1: never
     # below the p-value the computed route would give, so the choice by the validation gain
-    # keeps the level.  An extension that cannot predict (output blocks) has no such route.
-    present = ref.horizon_loss is not None and pred is not None and test.n_batches < MAX_BATCHES
+    # keeps the level.  An extension that cannot predict (output blocks), or predicts one step
+    # only (a state space with an operator with a memory), has no such route.
+    present = (
+        ref.horizon_loss is not None
+        and pred is not None
+        and predicts_ahead(ext.model)
+        and test.n_batches < MAX_BATCHES
+    )
     computed = present and (could or (direct is not None and ext.train_gain > 0))
     deferred = present and not computed
     ahead = prediction_losses(ext.model, valid, ref.horizon) if computed else None

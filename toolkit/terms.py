@@ -416,7 +416,8 @@ def term_from_dict(data: Any, where: str, problems: list[str]) -> Term | None:
 
 @functools.lru_cache(maxsize=512)
 def _compiled_structure(terms: tuple[Term, ...]) -> dict[str, Any]:
-    """The read-only attributes of a :class:`CompiledTerms` for ``terms`` (cached)."""
+    """The read-only attributes of a :class:`CompiledTerms` for ``terms`` (cached; not the
+    terms themselves, which each instance keeps as it was given them)."""
     keys: set[tuple[str, int]] = set()
     for t in terms:
         for f in t.factors:
@@ -428,7 +429,7 @@ def _compiled_structure(terms: tuple[Term, ...]) -> dict[str, Any]:
     index = {k: i for i, k in enumerate(ordered)}
     nt = len(terms)
     mf = max((len(t.factors) for t in terms), default=0) or 1
-    out: dict[str, Any] = {"terms": terms, "keys": ordered}
+    out: dict[str, Any] = {"keys": ordered}
     for name in ("_cur", "_prev", "_cur2", "_prev2"):
         out[name] = np.zeros((nt, mf), dtype=int)
     for name in ("_hasdiff", "_hasminus", "_active"):
@@ -515,8 +516,10 @@ class CompiledTerms:
     def __init__(self, terms: Sequence[Term]) -> None:
         # The index arrays depend on the terms alone and are only read: a search of candidate
         # extensions compiles the same terms thousands of times, so they are built once
-        # (:func:`_compiled_structure`); each instance holds its own operators' state.
-        self.__dict__.update(_compiled_structure(tuple(terms)))
+        # (:func:`_compiled_structure`); each instance holds its own operators' state, and its
+        # own terms (equal terms share the arrays: 0.0 and -0.0, 3 and 3.0 compare equal).
+        self.terms = tuple(terms)
+        self.__dict__.update(_compiled_structure(self.terms))
         self.reset()
 
     @property

@@ -600,7 +600,8 @@ def prediction_losses(model: Model, valid: Dataset, horizon: int = 1) -> FloatAr
     the measured outputs decorrelate within about as many samples, and a structure the
     baseline lacks shows in them as well; a one-step prediction of a finely sampled record is
     mostly measurement noise, while a force loop's lag shows one step ahead and hardly over
-    twenty.  None for a model with output blocks.
+    twenty.  None for a model with output blocks, or one :func:`predict` cannot take that far
+    (a state space with an operator with a memory beyond one step: ``predicts_ahead``).
     """
     if model.output_blocks:
         # predict() runs the representation from measured outputs; a measured output that

@@ -51,6 +51,11 @@ def predict(model: Model, u: FloatArray, y: FloatArray, k: int = 1) -> FloatArra
     y = y_checked
     if k < 1:
         raise DataError(f"The prediction horizon k must be >= 1, found {k}.")
+    if k > 1 and not predicts_ahead(model):
+        raise SimulationError(
+            f"{k}-step prediction of a state space with terms with a memory (play, bouc_wen, slew_lag) would "
+            "need their state estimated at every sample; use k=1 or a simulation."
+        )
     if model.is_wiener:
         # A Wiener model: the representation predicts its inner signal from the measured
         # outputs taken back through the curves, and the curves give the outputs.
@@ -104,11 +109,6 @@ def _predict_ss_terms(
     if k == 1:
         return first
     ct = CompiledTerms(rep.terms)
-    if not predicts_ahead(model):
-        raise SimulationError(
-            f"{k}-step prediction of a state space with terms with a memory (play, bouc_wen, slew_lag) would "
-            "need their state estimated at every sample; use k=1 or a simulation."
-        )
     L = max((t.max_lag for t in rep.terms), default=1)
     names_in, names_out = model.input_names, model.output_names
     u_raw = u + u0

@@ -471,12 +471,12 @@ def _compiled_structure(terms: tuple[Term, ...]) -> dict[str, Any]:
             groups[int(code), None] = np.nonzero(mask)
     out["_groups"] = groups
     # (term, factor) positions of the hysteresis operators, and their function names
-    out["_memory"] = [
+    out["_memory"] = tuple(
         (i, j, t.factors[j].fn)
         for i, t in enumerate(terms)
         for j in range(len(t.factors))
         if t.factors[j].stateful
-    ]
+    )
     for value in out.values():  # shared by every instance: read only
         if isinstance(value, np.ndarray):
             value.flags.writeable = False
@@ -511,7 +511,7 @@ class CompiledTerms:
     _anydiff: bool
     _anyminus: bool
     _groups: dict[tuple[int, float | None], tuple[NDArray[np.intp], ...]]
-    _memory: list[tuple[int, int, str]]
+    _memory: tuple[tuple[int, int, str], ...]
 
     def __init__(self, terms: Sequence[Term]) -> None:
         # The index arrays depend on the terms alone and are only read: a search of candidate

@@ -342,7 +342,7 @@ def test_a_dead_time_no_linear_model_without_it_fits_is_named():
     assert behind["decides"] and check["fallback"], check
     assert not check["error_ratio"] > check["threshold"]  # N4SID without it fails as well
     # the pinned N4SID stays the baseline after the pem check
-    assert d.to_dict()["baseline"]["method"] == "n4sid" and not check.get("pem", {}).get("fallback")
+    assert summary["baseline"]["method"] == "n4sid" and not check.get("pem", {}).get("fallback")
     # the fallback and the effects' candidates at the order N4SID has behind the dead time
     assert check["reference_options"]["order"] == behind["order"] >= 1
     assert d.causes[:1] == ("input_delay",), top

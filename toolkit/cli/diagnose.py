@@ -223,8 +223,8 @@ def render_diagnosis(summary: dict[str, Any]) -> str:
         )
     if check and check["biased"]:
         behind = check.get("reference_behind_dead_times") or {}
-        dead_times = bool(behind.get("decides")) and "dead_times" in behind
-        order = (check.get("reference_options") or {}).get("order")
+        dead_times = bool(behind.get("decides"))
+        order = behind.get("order")
         instead = (
             "n4sid instead"
             if not dead_times

@@ -509,8 +509,13 @@ def choose_baseline(train: Dataset, method: str, settings: Settings) -> Baseline
                 identifier, model = RefinedFallback(identifier), refined
         check.pop("_identifier", None)
         check.pop("_model", None)
+        known = check.pop("_baseline_error")  # of the model judged, until it falls back
         judged = selected if selected is not None else model
-        deeper = check_against_pem(judged, train) if settings.fallback else None
+        deeper = (
+            check_against_pem(judged, train, None if check["fallback"] else known)
+            if settings.fallback
+            else None
+        )
         if deeper is not None:
             check["pem"] = {k: v for k, v in deeper.items() if not k.startswith("_")}
             if deeper["fallback"]:
@@ -1957,54 +1962,59 @@ def check_baseline(
     try:
         ident = identifiers().get("n4sid").create(offset=at_point)
         ref = ident.identify(train)
-        e_base, _ = _training_error(baseline, train)
+        e_base, fit_base = _training_error(baseline, train)
         e_ref, fit_ref = _training_error(ref, train)
     except _NUMERICAL_ERRORS:
         return None
     ratio = e_base / e_ref if e_ref > 0 else math.inf
     delays = {n: float(d) for n, d in (dead or {}).items() if d > 0}
-    behind = None
+    behind: dict[str, Any] = {}
     if delays and not ratio > BIAS_RATIO:
-        ident, ref, behind = _behind_dead_times(ident, ref, delays, train, e_base, at_point)
-    options: dict[str, Any] = {"offset": at_point}
-    if behind is not None and "order" in behind:
-        options["order"] = behind["order"]
-    extra = {} if behind is None else {"reference_behind_dead_times": behind}
+        behind, order = _behind_dead_times(ident, delays, train, e_base)
+        if order is not None:
+            # The effects build their candidates with the fallback's identifier: at N4SID's
+            # automatic order each candidate chose its own (on the cylinder three states
+            # against the fallback's one) and every effect gained by its order (+21 to +26
+            # points, the dead time ahead of a lag by 0.02-0.07); at the order behind the
+            # dead times the delay wins by 4 to 8 points.
+            pinned = dataclasses.replace(ident, order=order)
+            try:
+                ident, ref = pinned, pinned.identify(train)  # may be the baseline: its own fit
+                behind["order"] = order
+            except _NUMERICAL_ERRORS:
+                pass
+    pinned_order = {"order": behind["order"]} if "order" in behind else {}
     return {
         "reference": "n4sid",
-        "reference_options": options,
-        **extra,
+        "reference_options": {"offset": at_point, **pinned_order},
+        **({"reference_behind_dead_times": behind} if behind else {}),
         "requested_method": method,
         "error_ratio": ratio,
         "threshold": BIAS_RATIO,
-        "biased": bool(ratio > BIAS_RATIO or (behind or {}).get("decides", False)),
-        "reference_fit": mean_fit(ref, train) if "order" in options else fit_ref,
+        "biased": bool(ratio > BIAS_RATIO or behind.get("decides", False)),
+        "reference_fit": mean_fit(ref, train) if pinned_order else fit_ref,
         "_identifier": ident,
         "_model": ref,
+        "_baseline_error": (e_base, fit_base),
     }
 
 
 def _behind_dead_times(
-    ident: Any,
-    ref: Model,
-    dead: dict[str, float],
-    train: Dataset,
-    e_base: float,
-    at_point: bool,
-) -> tuple[Any, Model, dict[str, Any]]:
-    """:func:`check_baseline`'s second judge: N4SID identified behind the dead times
-    (``dead``, samples per input), and the fallback's identifier and model — N4SID without
-    the dead times, of the order it has behind them where it decides the bias (``ident``,
-    ``ref`` as they are elsewhere or where that fit fails)."""
+    ident: Any, dead: dict[str, float], train: Dataset, e_base: float
+) -> tuple[dict[str, Any], int | None]:
+    """:func:`check_baseline`'s second judge: N4SID (``ident``) identified behind the dead
+    times (``dead``, samples per input).  Returns its record and, where it decides the bias,
+    the order it has there (the fallback's, without the dead times); None elsewhere or where
+    the fit fails."""
     blocks = [Block("delay", n, {"samples": d}) for n, d in dead.items()]
     try:
         with without_training_fit():
             delayed = refit_with_input_blocks(ident.identify, blocks)(train)
         e_delayed, fit_delayed = _training_error(delayed, train)
     except _NUMERICAL_ERRORS:
-        return ident, ref, {"dead_times": dead, "error": "N4SID behind them failed"}
+        return {"dead_times": dead, "error": "N4SID behind them failed"}, None
     if not math.isfinite(fit_delayed):  # (_loss caps a diverged run: its ratio would be ~0)
-        return ident, ref, {"dead_times": dead, "error": "N4SID behind them diverged"}
+        return {"dead_times": dead, "error": "N4SID behind them diverged"}, None
     ratio = e_base / e_delayed if e_delayed > 0 else math.inf
     behind = {
         "dead_times": dead,
@@ -2013,19 +2023,7 @@ def _behind_dead_times(
         "decides": bool(ratio > BIAS_RATIO),
     }
     order = getattr(delayed.representation, "n_states", None)
-    if behind["decides"] and order:
-        # The effects build their candidates with the fallback's identifier: at N4SID's
-        # automatic order each candidate chose its own (on the cylinder three states against
-        # the fallback's one) and every effect gained by its order (+21 to +26 points, the
-        # dead time ahead of a lag by 0.02-0.07); at the order behind the dead times the
-        # delay wins by 4 to 8 points.
-        pinned = identifiers().get("n4sid").create(offset=at_point, order=int(order))
-        try:
-            ident, ref = pinned, pinned.identify(train)  # may be the baseline: its own fit
-            behind["order"] = int(order)
-        except _NUMERICAL_ERRORS:
-            pass
-    return ident, ref, behind
+    return behind, int(order) if behind["decides"] and order else None
 
 
 #: A baseline (after the N4SID check) whose free run fits its own training data below this
@@ -2043,7 +2041,9 @@ def _training_error(model: Model, train: Dataset) -> tuple[float, float]:
     return float(np.mean(_loss(data.y, sim))), mean
 
 
-def check_against_pem(model: Model, train: Dataset) -> dict[str, Any] | None:
+def check_against_pem(
+    model: Model, train: Dataset, error: tuple[float, float] | None = None
+) -> dict[str, Any] | None:
     """Compare a baseline that does not explain its own training data with ``pem``'s model.
 
     The N4SID check cannot see a baseline's bias when N4SID fails as well: on a slow process
@@ -2058,10 +2058,11 @@ def check_against_pem(model: Model, train: Dataset) -> dict[str, Any] | None:
     pem's model as its baseline, and the effects build their candidates with N4SID of pem's
     order and structure, each candidate refined before it is scored, as on the N4SID
     fallback (:class:`RefinedFallback`).  None when the baseline fits its training data at
-    :data:`POOR_TRAINING_FIT` or better, or when pem fails.
+    :data:`POOR_TRAINING_FIT` or better, or when pem fails.  ``error``: the model's
+    :func:`_training_error`, where the caller has it.
     """
     try:
-        e_base, fit_base = _training_error(model, train)
+        e_base, fit_base = error if error is not None else _training_error(model, train)
         if not fit_base < POOR_TRAINING_FIT:
             return None
         ident = identifiers().get("pem").create(integrator=False, delay=False)

@@ -26,8 +26,6 @@ from tendonkit.robot.protocol import circles, pseudo_random
 # are built once there (module scope would rebuild them when other tests interleave)
 pytestmark = pytest.mark.xdist_group("test_collect")
 
-pytest.importorskip("fmpy")
-
 TOL = 1e-12
 GROUPS = {
     "q": [f"q{i}" for i in range(1, 7)],

@@ -44,8 +44,6 @@ from tendonkit.testsystems import random_state_space
 # are built once there (module scope would rebuild them when other tests interleave)
 pytestmark = pytest.mark.xdist_group("test_cosim")
 
-pytest.importorskip("fmpy")
-
 
 @pytest.fixture(scope="session")
 def plant_fmu(tmp_path_factory):

@@ -63,7 +63,12 @@ def valid_files(tmp_path_factory) -> tuple[str, str]:
     return csv.read_text(), model.read_text()
 
 
-def run_case(csv_text: str, model_text: str, capsys: pytest.CaptureFixture[str]) -> None:
+def run_case(
+    csv_text: str, model_text: str, capsys: pytest.CaptureFixture[str]
+) -> list[tuple[int, int | None]]:
+    """Both commands on the files; each one's exit status and, for ``simulate`` that ran, the
+    number of rows it wrote."""
+    results: list[tuple[int, int | None]] = []
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         csv, model, out = folder / "d.csv", folder / "m.json", folder / "out.csv"
@@ -84,15 +89,23 @@ def run_case(csv_text: str, model_text: str, capsys: pytest.CaptureFixture[str])
             assert "Traceback" not in err
             if code == 2:
                 assert err.startswith(("tendonkit: error:", "usage:")), err
+            rows = None
             if args[0] == "simulate":
                 if code == 0:
                     y = np.loadtxt(out, delimiter=",", skiprows=1, ndmin=2)
                     assert np.all(np.isfinite(y)) and y.shape[1] == 3
+                    # one row per sample of the inputs the command read
+                    names = [s["name"] for s in json.loads(model_text)["inputs"]]
+                    read = Dataset.from_csv(csv, names, [], require_outputs=False)
+                    assert y.shape[0] == read.experiments[0].n_samples, (y.shape, args)
+                    rows = int(y.shape[0])
                     out.unlink()
                 else:
                     assert not out.exists()
+            results.append((code, rows))
         assert {p: p.read_bytes() for p in (csv, model)} == before
         assert sorted(p.name for p in folder.iterdir()) == ["d.csv", "m.json"]
+    return results
 
 
 JUNK = st.sampled_from(
@@ -189,5 +202,5 @@ def test_broken_model_files(valid_files, capsys, data):
 
 
 def test_the_valid_files_pass(valid_files, capsys):
-    run_case(*valid_files, capsys)
-    assert Dataset  # the fixture's data are a Dataset's CSV
+    # both commands succeed on the unmutated files, and simulate writes every sample
+    assert run_case(*valid_files, capsys) == [(0, N_ROWS), (0, None)]

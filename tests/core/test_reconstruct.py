@@ -10,6 +10,7 @@ import pytest
 from tendonkit.compare import compare
 from tendonkit.dataset import Dataset, Experiment
 from tendonkit.errors import DataError
+from tendonkit.fmu import plant as fmu_plant
 from tendonkit.robot.kinematics import forward_kinematics
 from tendonkit.robot.protocol import circles, pseudo_random
 from tendonkit.robot.reconstruct import (
@@ -19,8 +20,6 @@ from tendonkit.robot.reconstruct import (
     joint_extras,
     reconstruct,
 )
-
-fmu_plant = pytest.importorskip("tendonkit.fmu.plant")
 
 
 def _exp(proto, name, noise=False, seed=0):

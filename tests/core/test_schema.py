@@ -133,15 +133,17 @@ def test_loading_never_evaluates_code(tmp_path):
         states=(Signal("x"),),
     )
     data = model.to_dict()
+    # the payload names an absolute path, so the check below sees it wherever the process runs
+    pwned = tmp_path / "PWNED"
     data["representation"]["terms"][0]["factors"][0]["signal"] = (
-        "__import__('os').system('touch PWNED')"
+        f"__import__('pathlib').Path({str(pwned)!r}).touch()"
     )
     data["representation"]["terms"][0]["factors"][0]["fn"] = "eval"
     path = tmp_path / "evil.json"
     path.write_text(json.dumps(data))
     with pytest.raises(SchemaError, match="'eval' is not one of"):
         Model.load(path)
-    assert not (tmp_path / "PWNED").exists()
+    assert not pwned.exists()
 
 
 def test_nan_in_json_is_refused():

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from tendonkit.errors import SchemaError
 from tendonkit.terms import FUNCTIONS, CompiledTerms, Factor, Term, series_getter
 
 
@@ -146,7 +147,7 @@ def test_stateful_terms_step_as_they_run_along_a_record_and_peeking_does_not_adv
         dv[i, -1] = h
         fd = (ct.evaluate(vals + dv)[:, -1] - ct.evaluate(vals - dv)[:, -1]) / (2 * h)
         np.testing.assert_allclose(jac[:, i, -1], fd, atol=1e-5)
-    with pytest.raises(Exception, match="one step or one record"):
+    with pytest.raises(SchemaError, match="one step or one record"):
         ct.evaluate(vals.reshape(len(ct.keys), 30, 10))
 
 

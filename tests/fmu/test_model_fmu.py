@@ -37,8 +37,6 @@ from tendonkit.terms import Factor, Term
 # are built once there (module scope would rebuild them when other tests interleave)
 pytestmark = pytest.mark.xdist_group("test_model_fmu")
 
-pytest.importorskip("fmpy")
-
 TOL = 1e-9
 INPUTS = ["T1", "T2", "T3", "T4"]
 JOINT_OUTPUTS = ["q1", "q2", "q3", "q4", "q5", "q6", "ee_x", "ee_y", "ee_z"]

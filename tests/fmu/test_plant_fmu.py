@@ -15,6 +15,7 @@ import xml.etree.ElementTree as ET
 import zipfile
 from pathlib import Path
 
+import fmpy  # a dependency: missing, the module fails (never skips)
 import numpy as np
 import pytest
 
@@ -26,8 +27,6 @@ from tendonkit.robot.protocol import pseudo_random
 # one worker runs this module (make test: --dist loadgroup), and its session-scoped fixtures
 # are built once there (module scope would rebuild them when other tests interleave)
 pytestmark = pytest.mark.xdist_group("test_plant_fmu")
-
-fmpy = pytest.importorskip("fmpy")
 
 TOL = 1e-12
 KEYS = ("q", "ee", "T_meas", "q_true", "ee_true")
@@ -252,14 +251,15 @@ def test_bad_parameters_give_one_clear_error_and_no_crash(fmus):
 def test_parameter_file_is_data_never_code(tmp_path):
     # The resource file is parsed as JSON; a string that looks like code stays a string and
     # is refused by the configuration's checks, unknown names are ignored.
-    code = "__import__('os').system('touch pwned')"
+    pwned = tmp_path / "pwned"  # an absolute path: the check sees it wherever the process runs
+    code = f"__import__('pathlib').Path({str(pwned)!r}).touch()"
     (tmp_path / "plant_parameters.json").write_text(
         json.dumps({"delay_s": code, "not_a_parameter": 1, "friction_on": True})
     )
     params = read_parameters(str(tmp_path))
     assert params["delay_s"] == code and params["friction_on"] is True
     assert "not_a_parameter" not in params
-    assert not (tmp_path / "pwned").exists()
+    assert not pwned.exists()
 
 
 def test_every_plant_variable_is_described(fmus):

@@ -115,7 +115,7 @@ def _cases() -> list:
     for effect in EFFECTS:
         for seed in SEEDS:
             reason = MISSES.get((effect, seed))
-            marks = [pytest.mark.xfail(strict=False, reason=reason)] if reason else []
+            marks = [pytest.mark.xfail(strict=True, reason=reason)] if reason else []
             out.append(pytest.param(effect, seed, marks=marks, id=f"{effect}-{seed}"))
     return out
 

@@ -84,8 +84,6 @@ from tendonkit.robot.cosim import (
 )
 from tendonkit.robot.protocol import circles, pseudo_random
 
-pytest.importorskip("fmpy")
-pytest.importorskip("pysindy")
 pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("test_mpc_cosim")]
 
 SEED = 17

@@ -54,10 +54,11 @@ def test_suite_catches_a_broken_identifier():
             )
             return build_model(self, dataset, rep)
 
-    failures = 0
+    failed = set()
     for check in CHECKS:
         try:
             check(Lazy())
         except AssertionError:
-            failures += 1
-    assert failures >= 2  # no error for tiny data, and a fit far below the threshold
+            failed.add(check.__name__)
+    # no error for tiny data, and a fit far below the threshold; every other check passes
+    assert failed == {"check_shape_errors", "check_simulate_and_compare"}, failed

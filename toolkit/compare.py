@@ -25,8 +25,8 @@ from .figures import (
 from .frequency import empirical_response, model_response
 from .metrics import FitRow, fit, fit_table
 from .predict import predict
-from .schema import Model
-from .simulate import aligned, divergence, simulate
+from .schema import ARX, Model
+from .simulate import aligned, divergence, initial_span, simulate
 from .uncertainty import covariance, simulate_band
 
 #: Per-model additions to a row of :func:`compare`: ``(model, data, sims, name) -> dict``.
@@ -79,6 +79,23 @@ def _score(
     if too_short:
         raise DataError(
             f"init_window {skip} leaves no sample to score in experiment(s) {', '.join(too_short)}."
+        )
+    # an ARX started from the measured outputs copies its first samples (its lags, and k - 1
+    # more for a k-step prediction): a record no longer than that would score 100 % unseen
+    copied = (
+        initial_span(model) + (k - 1 if k else 0)
+        if isinstance(model.representation, ARX) and (k is not None or initial == "estimate")
+        else 0
+    )
+    too_short = [
+        f"{e.name or i} ({len(e.y)} samples)"
+        for i, e in enumerate(data.experiments)
+        if len(e.y) <= copied
+    ]
+    if too_short:
+        raise DataError(
+            f"model {model.name!r} starts from the first {copied} measured samples of each "
+            f"record, which leaves none to score in {', '.join(too_short)}: give longer records."
         )
     y = np.vstack([e.y[skip:] for e in data.experiments])
     y_hat = np.vstack([s[skip:] for s in sims])

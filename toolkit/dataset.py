@@ -513,6 +513,17 @@ def _read_csv(
         p.append(f"{where}: non-numeric values: {'; '.join(shown)}{more}.")
     idx = {h: j for j, h in enumerate(header)}
     t = values[:, idx[time]]
+    t_unit = file_units.get(time, "")
+    if t_unit:  # a time column with its unit: read in seconds
+        scale = TIME_UNITS.get(t_unit)
+        if scale is None:
+            p.append(
+                f"{where}: time column {time!r} is in {t_unit!r}; tendonkit reads time in "
+                f"{', '.join(TIME_UNITS)}."
+            )
+        else:
+            t = t * scale
+            file_units = {**file_units, time: "s"}
     dt = 0.0
     if len(t) < 2:
         p.append(f"{where}: {len(t)} data rows; at least 2 are needed.")
@@ -554,6 +565,9 @@ def _read_csv(
     )
     return exp, dt, []
 
+
+#: Units of a time column and their length in seconds (the time is read in seconds).
+TIME_UNITS = {"s": 1.0, "sec": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "min": 60.0, "h": 3600.0}
 
 #: A header cell with its unit: ``name [unit]``.
 _UNIT_CELL = re.compile(r"^(?P<name>.*?)\s*\[(?P<unit>[^\[\]]*)\]$")

@@ -348,6 +348,10 @@ def _worker_main(conn: Connection, fn: Callable[[Any, Any], Any], shared_blob: b
         if msg is None:
             return
         index, payload = msg
+        try:  # the task's clock starts now, not when it was queued behind the start-up
+            conn.send((STARTED, index))
+        except OSError:
+            return
         value, error, seconds = _call(fn, shared, payload)
         try:
             conn.send((index, value, error, me, seconds))
@@ -357,11 +361,20 @@ def _worker_main(conn: Connection, fn: Callable[[Any, Any], Any], shared_blob: b
             return
 
 
+#: A worker's message that it begins a task (its timeout counts from then).
+STARTED = "started"
+#: How long a worker may take to start (a fresh interpreter importing the task's function and
+#: its shared data; tens of seconds on a loaded machine) before the time of its first task counts.
+STARTUP_ALLOWANCE_S = 120.0
+
+
 @dataclass
 class _Slot:
     process: Any
     conn: Connection
     task: int | None = None
+    #: When the task's timeout clock started: the worker's word that it began the task, or until
+    #: then the time the task was sent plus :data:`STARTUP_ALLOWANCE_S`.
     since: float = 0.0
 
 
@@ -392,7 +405,7 @@ def _processes(
             return
         i = queue.popleft()
         attempts[i] += 1
-        slot.task, slot.since = i, time.monotonic()
+        slot.task, slot.since = i, time.monotonic() + STARTUP_ALLOWANCE_S
         try:
             slot.conn.send((i, payloads[i]))
         except OSError:  # the worker died before it could take it: the task waits for another
@@ -422,6 +435,10 @@ def _processes(
                 with contextlib.suppress(EOFError, OSError):
                     if s.conn.poll():
                         got = s.conn.recv()
+                if got is not None and got[0] == STARTED:
+                    if s.task == got[1]:
+                        s.since = time.monotonic()
+                    continue
                 if got is not None:
                     index, value, error, who, seconds = got
                     s.task = None

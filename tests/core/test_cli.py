@@ -188,3 +188,83 @@ def test_identify_lowpass_filters_the_outputs_first(tmp_path, csv_file):
     assert "the folder of output" in r.stderr  # every problem at once
     r = run(*args, "--lowpass", "fast")
     assert r.returncode == 2 and "'paper' or 'paper-matlab', found 'fast'" in r.stderr
+
+
+def _identify(tmp_path, data, *extra: str) -> int:
+    return main(
+        ["identify", str(data), "--method", "arx", "--inputs", "u1,u2", "--outputs", "y1,y2",
+         "--option", "na=4", "--option", "nb=4", *extra]
+    )  # fmt: skip
+
+
+def test_two_outputs_of_one_command_never_share_a_file(tmp_path, csv_file, capsys):
+    data = csv_file()
+    same = tmp_path / "m.json"
+    assert _identify(tmp_path, data, "-o", str(same), "--json", str(same)) == 2
+    assert "-o and --json name the same file" in capsys.readouterr().err
+    assert not same.exists()
+
+
+def test_a_record_no_longer_than_the_models_lags_is_refused_not_scored(tmp_path, csv_file, capsys):
+    """An ARX simulation copies its first lags from the measured outputs: three samples of an
+    ARX(4, 4) would have scored 100 %."""
+    data = csv_file()
+    model = tmp_path / "m.json"
+    assert _identify(tmp_path, data, "-o", str(model)) == 0
+    lines = data.read_text().splitlines()
+    short = tmp_path / "short.csv"
+    short.write_text("\n".join(lines[:4]) + "\n")  # header and three samples
+    capsys.readouterr()
+    assert main(["compare", str(short), str(model)]) == 2
+    err = capsys.readouterr().err
+    assert "starts from the first 4 measured samples" in err and "short (3 samples)" in err
+    assert main(["compare", str(short), str(model), "--k", "2"]) == 2
+    assert "first 5 measured samples" in capsys.readouterr().err
+
+
+def test_the_time_column_is_read_in_seconds_whatever_its_unit(tmp_path):
+    from tendonkit.dataset import write_csv
+    from tendonkit.errors import DataError
+
+    t = np.arange(50) * 30.0  # 30 ms steps written in milliseconds
+    cols = {"t": t, "u": np.sin(t / 100.0), "y": np.cos(t / 100.0)}
+    path = write_csv(tmp_path / "ms.csv", cols, units={"t": "ms"})
+    assert path.read_text().startswith("t [ms],")
+    ds = Dataset.from_csv(path, ["u"], ["y"])
+    assert ds.dt == pytest.approx(0.03) and ds.experiments[0].t[-1] == pytest.approx(1.47)
+    odd = write_csv(tmp_path / "odd.csv", cols, units={"t": "furlong", "u": "V"})
+    with pytest.raises(DataError, match="time column 't' is in 'furlong'"):
+        Dataset.from_csv(odd, ["u"], ["y"])
+
+
+def test_diagnose_refuses_its_training_data_as_validation_data(tmp_path, csv_file, capsys):
+    data = csv_file()
+    copy = tmp_path / "copy.csv"
+    copy.write_bytes(data.read_bytes())
+    for valid in (data, copy):
+        code = main(["diagnose", str(data), str(valid), "--inputs", "u1,u2", "--outputs", "y1,y2"])
+        assert code == 2
+        assert "are the training data" in capsys.readouterr().err
+
+
+def test_a_file_system_refusal_no_check_foresaw_is_one_message(tmp_path, monkeypatch, capsys):
+    import tendonkit.cli.robot as robot
+
+    def refused(out, **kwargs):
+        raise PermissionError(13, "Permission denied", str(out))
+
+    monkeypatch.setattr(robot, "run_demo", refused)
+    assert main(["demo", "--out", str(tmp_path / "report")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("tendonkit: error: cannot use") and "Permission denied" in err
+    assert "Traceback" not in err
+
+
+def test_diagnose_refuses_a_validation_record_the_baseline_reads_whole(tmp_path, csv_file, capsys):
+    data = csv_file()
+    short = tmp_path / "short.csv"
+    short.write_text("\n".join(data.read_text().splitlines()[:4]) + "\n")  # three samples
+    args = ["diagnose", str(data), str(short), "--inputs", "u1,u2", "--outputs", "y1,y2"]
+    assert main([*args, "--method", "arx", "--option", "na=4", "--option", "nb=4"]) == 2
+    err = capsys.readouterr().err
+    assert "leaves nothing to test in the validation record(s) 'short' (3)" in err, err

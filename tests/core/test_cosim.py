@@ -288,6 +288,19 @@ def test_cli_errors_are_one_message_with_exit_2(tmp_path, model_json):
     assert proc.returncode == 2 and "spiral" in proc.stderr and "Traceback" not in proc.stderr
 
 
+def test_cli_checks_the_figures_folder_before_the_co_simulation(tmp_path, model_json, capsys):
+    taken = tmp_path / "s.csv"
+    taken.write_text("a file, not a folder")
+    out = tmp_path / "mp.json"
+    args = ["mpc", str(model_json), "--reference", "step", "--duration", "0.3"]
+    assert main([*args, "--plot", str(taken), "--json", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "--plot" in err and "exists and is not a folder" in err and "Traceback" not in err
+    assert taken.read_text() == "a file, not a folder" and not out.exists()
+    assert main([*args, "--plot", str(out), "--json", str(out)]) == 2
+    assert "--json and --plot name the same path" in capsys.readouterr().err
+
+
 def test_cli_refuses_a_model_it_cannot_control(tmp_path, capsys):
     path = tmp_path / "m.json"
     two_mode_model().replace(outputs=(Signal("q1"), Signal("tilt"))).save(path)

@@ -83,6 +83,31 @@ def test_a_task_that_hangs_is_stopped_at_its_timeout_and_the_others_finish():
     assert outs[1].error.startswith("Timeout: the task ran longer than 3 s")
 
 
+def _slow_to_load() -> SlowToLoad:
+    import time
+
+    time.sleep(4.0)  # a worker's start-up on a loaded machine: imports, the shared data
+    return SlowToLoad()
+
+
+class SlowToLoad:
+    """Shared data whose unpickling in each fresh worker takes 4 s."""
+
+    def __reduce__(self) -> tuple:
+        return (_slow_to_load, ())
+
+
+def test_a_workers_start_up_does_not_count_against_its_tasks_timeout():
+    # the timeout is the task's: a worker that takes 4 s to start still runs 0 and 2 within 3 s
+    # (before, the clock started when the task was queued, and every task timed out)
+    outs = sorted(
+        run_tasks(sleeps_on_one, [0, 1, 2], shared=SlowToLoad(), jobs=2, timeout=3.0),
+        key=lambda o: o.index,
+    )
+    assert [o.value for o in outs] == [0, None, 2]
+    assert outs[1].error.startswith("Timeout: the task ran longer than 3 s")
+
+
 @pytest.mark.parametrize(
     ("kwargs", "needle"),
     [

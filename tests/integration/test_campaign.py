@@ -370,3 +370,46 @@ def test_a_pool_worker_killed_from_outside_mid_campaign_loses_only_its_run(folde
     victim = f":{victims[0].pid}"
     assert sum(r["worker"].endswith(victim) for r in res.rows) <= 1  # it finished at most one
     assert res.table(deterministic=True) == reference.table(deterministic=True)
+
+
+def test_a_spec_with_mistakes_runs_none_of_its_code_and_json_never_replaces_an_input(
+    folder, tmp_path, capsys
+):
+    """The user's module is imported only once everything else in the spec is valid (docs:
+    reading a spec executes nothing), and ``--json`` may not name the spec or a model it reads
+    (the summary would replace it)."""
+    (folder / "marks.py").write_text(
+        "from pathlib import Path\n"
+        f"Path({str(tmp_path / 'IMPORTED')!r}).touch()\n"
+        "class C:\n    def step(self, y, r):\n        return y\n"
+    )
+    bad = folder / "marks.toml"
+    bad.write_text(
+        '[campaign]\ndraws = 0\n[[controllers]]\nname = "mine"\nkind = "python"\n'
+        'class = "marks:C"\npath = "."\n'
+    )
+    code = main(["campaign", str(bad), "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err
+    assert code == 2 and "draws must be a whole number" in err
+    assert not (tmp_path / "IMPORTED").exists()
+    # valid otherwise: the class is imported and checked, and its problem is reported
+    bad.write_text(
+        '[[controllers]]\nname = "mine"\nkind = "python"\nclass = "marks:C"\npath = "."\n'
+        "options = { gain = 2 }\n"
+    )
+    code = main(["campaign", str(bad), "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err
+    assert code == 2 and "options do not fit marks:C" in err
+    assert (tmp_path / "IMPORTED").exists()
+    spec = folder / "tiny.toml"
+    spec.write_text(
+        '[campaign]\nname = "tiny"\n[[controllers]]\nname = "lin"\nmodel = "linear.json"\n'
+        '[[references]]\nkind = "step"\nduration = 0.3\n'
+    )
+    before = {p: p.read_bytes() for p in (spec, folder / "linear.json")}
+    for target in (spec, folder / "linear.json"):
+        code = main(["campaign", str(spec), "--out", str(tmp_path / "t"), "--json", str(target)])
+        err = capsys.readouterr().err
+        assert code == 2 and "is also an input; refusing to overwrite it" in err, err
+    assert {p: p.read_bytes() for p in before} == before
+    assert not (tmp_path / "t").exists()

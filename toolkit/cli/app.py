@@ -92,6 +92,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except TendonkitError as exc:
         print(f"tendonkit: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
+    except OSError as exc:
+        # a file or folder the system refuses (permissions, a read-only disk, a name taken by
+        # a file) that no check foresaw: the user's to fix, so one message, never a traceback
+        where = f" {exc.filename!r}" if exc.filename else ""
+        print(f"tendonkit: error: cannot use{where}: {exc.strerror or exc}.", file=sys.stderr)
+        return EXIT_USAGE
     except KeyboardInterrupt:
         print("tendonkit: interrupted", file=sys.stderr)
         return 130

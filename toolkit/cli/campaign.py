@@ -26,7 +26,7 @@ from ..errors import OptionError
 from ..parallel import default_jobs, task_problems
 from ..robot.campaign import load_spec, run_campaign
 from ..robot.campaign_report import render
-from .common import check_output_dir, raise_problems, write_json
+from .common import check_output_dir, check_output_path, raise_problems, write_json
 
 __all__ = ["add_commands", "cmd_campaign"]
 
@@ -84,9 +84,9 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     if out is not None:
         check_output_dir(out, [args.spec], problems, what="--out")
     if args.json:
-        json_path = Path(args.json)
-        if not json_path.resolve().parent.is_dir():
-            problems.append(f"the parent folder of --json {args.json!r} does not exist.")
+        # never over the spec or a model it reads (the summary would replace it)
+        read = [args.spec] + [c.model for c in spec.controllers if c.model] if spec else [args.spec]
+        check_output_path(args.json, read, problems, what="--json")
     raise_problems(problems, "tendonkit campaign cannot run:")
     assert spec is not None and out is not None
     print(

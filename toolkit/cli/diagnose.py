@@ -7,6 +7,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from ..dataset import Dataset
 from ..diagnose import diagnose
 from ..diagnose.findings import between_text, evidence_notes, experiment_lead, reshaping_notes
@@ -98,6 +100,14 @@ def add_commands(sub: Any) -> None:
     p.set_defaults(func=cmd_diagnose)
 
 
+def _same_records(a: Dataset, b: Dataset) -> bool:
+    """Whether two datasets hold the same samples (one file given twice, or a copy of it)."""
+    return len(a.experiments) == len(b.experiments) and all(
+        np.array_equal(x.u, y.u) and np.array_equal(x.y, y.y)
+        for x, y in zip(a.experiments, b.experiments, strict=True)
+    )
+
+
 def cmd_diagnose(args: argparse.Namespace) -> int:
     """Find what the baseline model gets wrong, name the cause, extend and measure the gain."""
     problems: list[str] = []
@@ -135,6 +145,11 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
             data.append(Dataset.from_csv(path, inputs, outputs, time=args.time))
         except DataError as exc:
             problems.extend(exc.problems or [str(exc)])
+    if len(data) == 2 and _same_records(*data):
+        problems.append(
+            f"the validation data {args.valid!r} are the training data {args.train!r}: the test "
+            "needs a record the models were not fitted on (collect a second one, or split one)."
+        )
     if len(data) == 2 and abs(data[0].dt - data[1].dt) > 0.01 * data[0].dt:
         problems.append(
             f"training and validation sample times differ: {data[0].dt} s and {data[1].dt} s."

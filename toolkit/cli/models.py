@@ -93,6 +93,12 @@ def cmd_identify(args: argparse.Namespace) -> int:
     problems: list[str] = []
     inputs, outputs, _, factory = identifier_arguments(args, problems)
     check_output_path(args.output, args.data, problems)
+    if args.json:
+        check_output_path(args.json, args.data, problems, what="--json")
+        if Path(args.json).resolve() == Path(args.output).resolve():
+            problems.append(
+                "-o and --json name the same file; the summary would replace the model."
+            )
     data = None
     units = _units_argument(args.units, problems)
     try:

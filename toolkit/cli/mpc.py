@@ -40,6 +40,7 @@ from ..robot.cosim import (
 )
 from ..simulate import DT_TOLERANCE
 from .common import (
+    check_output_dir,
     check_output_path,
     load_model,
     positive_float,
@@ -166,8 +167,10 @@ def cmd_mpc(args: argparse.Namespace) -> int:
     inputs = [args.model] + ([args.plant] if args.plant else [])
     if args.json:
         check_output_path(args.json, inputs, problems)
-    if args.plot and not Path(args.plot).resolve().parent.exists():
-        problems.append(f"the parent folder of --plot {args.plot!r} does not exist.")
+    if args.plot:  # a folder of figures: checked before the co-simulation runs
+        check_output_dir(args.plot, inputs, problems, what="--plot")
+    if args.plot and args.json and Path(args.plot).resolve() == Path(args.json).resolve():
+        problems.append("--json and --plot name the same path.")
     if args.horizon is not None and not 1 <= args.horizon <= MAX_HORIZON:
         problems.append(
             f"--horizon must be from 1 to {MAX_HORIZON} samples ({MAX_HORIZON * STEP:g} s), "

@@ -246,6 +246,15 @@ def diagnose(
         unit="step",
     )
     base = choose_baseline(train, method, settings)
+    span = initial_span(base.model) if isinstance(base.model.representation, ARX) else 0
+    short = [f"{e.name!r} ({e.n_samples})" for e in valid.experiments if e.n_samples <= span]
+    if short:
+        # an ARX simulation copies its first lags from the measured outputs: nothing to test
+        raise DataError(
+            f"diagnose cannot run: the baseline ({base.method}) starts from the first {span} "
+            f"measured samples of a record, which leaves nothing to test in the validation "
+            f"record(s) {', '.join(short)}: give longer validation records."
+        )
     if base.selected is not None and base.choice and base.choice["dead_time_left_to_diagnosis"]:
         base.choice["selected_validation_fit"] = mean_fit(base.selected, valid)
     bar.update()

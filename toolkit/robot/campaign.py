@@ -328,7 +328,8 @@ class CampaignSpec:
 
 
 def load_spec(path: str | Path) -> CampaignSpec:
-    """Read and validate a campaign TOML file (nothing in it is executed).
+    """Read and validate a campaign TOML file (nothing in it is executed but, once everything
+    else is valid, the imports of its ``python`` controllers' modules).
 
     Raises
     ------
@@ -448,7 +449,8 @@ def _spec_from_dict(data: dict[str, Any], base_dir: Path, source: str) -> Campai
     fixed = {str(e).partition("=")[0].strip() for e in effects}
     vary = _vary(plant.get("vary", {}), PARAMETER_RANGES, fixed, problems)
 
-    controllers = _controllers(data.get("controllers"), base, problems)
+    imports: list[tuple[str, str, str | None, dict[str, Any]]] = []
+    controllers = _controllers(data.get("controllers"), base, problems, imports)
     references = _references(data.get("references"), problems)
 
     require = crit.get("require", [])
@@ -498,6 +500,10 @@ def _spec_from_dict(data: dict[str, Any], base_dir: Path, source: str) -> Campai
         base_dir=base,
         timeout_s=float(timeout_s),
     )
+    if not problems:
+        # a user's controller class is imported (its module runs) only once everything else in
+        # the spec is valid: a spec with mistakes is read without executing anything
+        _check_user_classes(imports, problems)
     if not problems and spec.n_runs > 1_000_000:
         problems.append(f"the campaign has {spec.n_runs} runs; at most 1,000,000 in one spec")
     if not problems:
@@ -594,7 +600,29 @@ def _vary(
     return out
 
 
-def _controllers(items: Any, base: Path, problems: list[str]) -> list[ControllerSpec]:
+def _check_user_classes(
+    imports: list[tuple[str, str, str | None, dict[str, Any]]], problems: list[str]
+) -> None:
+    """Import each user controller class and check its options against its signature."""
+    for where, target, full_path, options in imports:
+        try:
+            cls = _user_class(target, full_path)
+            inspect.signature(cls).bind(**options)
+        except OptionError as exc:
+            problems.append(f"{where}: {exc}")
+        except TypeError as exc:
+            problems.append(f"{where}: options do not fit {target}: {exc}")
+        except ValueError:  # no signature to check (a builtin): the runs will tell
+            pass
+
+
+def _controllers(
+    items: Any,
+    base: Path,
+    problems: list[str],
+    imports: list[tuple[str, str, str | None, dict[str, Any]]],
+) -> list[ControllerSpec]:
+    """The controller tables; a user class is only recorded in ``imports`` (checked later)."""
     if not (isinstance(items, list) and items and all(isinstance(i, dict) for i in items)):
         problems.append("[[controllers]]: give at least one controller table")
         return []
@@ -652,17 +680,7 @@ def _controllers(items: Any, base: Path, problems: list[str]) -> list[Controller
                 problems.append(f"{where}: options must be a table")
                 continue
             full_path = str((base / path).resolve()) if isinstance(path, str) else None
-            try:
-                cls = _user_class(target, full_path)
-                inspect.signature(cls).bind(**options)
-            except OptionError as exc:
-                problems.append(f"{where}: {exc}")
-                continue
-            except TypeError as exc:
-                problems.append(f"{where}: options do not fit {target}: {exc}")
-                continue
-            except ValueError:  # no signature to check (a builtin): the runs will tell
-                pass
+            imports.append((where, target, full_path, dict(options)))
             out.append(
                 ControllerSpec(name, kind, cls=target, path=full_path, options=dict(options))
             )

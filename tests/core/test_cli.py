@@ -268,3 +268,21 @@ def test_diagnose_refuses_a_validation_record_the_baseline_reads_whole(tmp_path,
     assert main([*args, "--method", "arx", "--option", "na=4", "--option", "nb=4"]) == 2
     err = capsys.readouterr().err
     assert "leaves nothing to test in the validation record(s) 'short' (3)" in err, err
+
+
+def test_every_value_argparse_cannot_use_is_listed_at_once(tmp_path, capsys):
+    """argparse stops at the first bad value; every one is listed (with a missing argument)."""
+    with pytest.raises(SystemExit) as exc:
+        main(["diagnose", "a.csv", "b.csv", "--alpha", "x", "--seed", "y", "--jobs", "z"])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and "Traceback" not in err
+    for needle in ("--alpha: invalid float value: 'x'", "--seed: a seed is a whole number",
+                   "--jobs: invalid int value: 'z'", "required: --inputs, --outputs"):  # fmt: skip
+        assert needle in err, needle
+    with pytest.raises(SystemExit) as exc:
+        main(["mpc", "m.json", "--reference", "spiral", "--duration", "-2", "--R", "abc"])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2
+    for needle in ("--reference: invalid choice: 'spiral'", "--duration: expected a finite",
+                   "--R: invalid float value: 'abc'"):  # fmt: skip
+        assert needle in err, needle

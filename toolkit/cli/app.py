@@ -56,7 +56,7 @@ def cmd_plugins(args: argparse.Namespace) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser() -> Parser:
     """The argument parser of the ``tendonkit`` command."""
     parser = Parser(
         prog="tendonkit",
@@ -83,7 +83,9 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit status."""
     parser = build_parser()
+    Parser.bad_values.clear()
     args = parser.parse_args(argv)
+    parser.report_bad_values()
     if not getattr(args, "func", None):
         parser.print_help()
         return EXIT_USAGE

@@ -17,7 +17,7 @@ import sys
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager, suppress
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 from ..dataset import split_header
 from ..errors import OptionError, SchemaError, TendonkitError
@@ -61,13 +61,58 @@ class UsageError(TendonkitError, ValueError):
     """Command-line arguments that cannot work together."""
 
 
+#: A value argparse could not convert or check (its problem is in :attr:`Parser.bad_values`).
+_UNPARSED = object()
+
+
 class Parser(argparse.ArgumentParser):
-    """argparse that reports errors in tendonkit's one-message style (exit 2)."""
+    """argparse that reports errors in tendonkit's one-message style (exit 2).
+
+    argparse stops at the first value it cannot convert or that is not among an option's
+    choices; here every such value is collected (:attr:`bad_values`, shared by a command and
+    its subcommands) and they are reported together: by :meth:`error` when argparse stops for
+    another reason, else by :meth:`report_bad_values` once the arguments are parsed.
+    """
+
+    #: Problems of the values parsed so far (class-level: one parse spans the subparsers).
+    bad_values: ClassVar[list[str]] = []
+
+    def _get_value(self, action: argparse.Action, arg_string: str) -> Any:
+        try:
+            return super()._get_value(action, arg_string)  # type: ignore[misc]
+        except argparse.ArgumentError as exc:
+            Parser.bad_values.append(str(exc))
+            return _UNPARSED
+
+    def _check_value(self, action: argparse.Action, value: Any) -> None:
+        if value is _UNPARSED:
+            return
+        try:
+            super()._check_value(action, value)  # type: ignore[misc]
+        except argparse.ArgumentError as exc:
+            if isinstance(action, argparse._SubParsersAction):
+                raise  # an unknown command: argparse's own message
+            Parser.bad_values.append(str(exc))
 
     def error(self, message: str) -> None:  # type: ignore[override]
         self.print_usage(sys.stderr)
-        print(f"tendonkit: error: {message}", file=sys.stderr)
+        problems = [*Parser.bad_values, message]
+        Parser.bad_values.clear()
+        if len(problems) == 1:
+            print(f"tendonkit: error: {message}", file=sys.stderr)
+        else:
+            listed = "".join(f"\n  - {p}" for p in problems)
+            print(f"tendonkit: error: the arguments cannot be used:{listed}", file=sys.stderr)
         raise SystemExit(EXIT_USAGE)
+
+    def report_bad_values(self) -> None:
+        """Exit 2 listing every value that could not be converted or checked, if any."""
+        if Parser.bad_values:
+            problems = list(Parser.bad_values)
+            Parser.bad_values.clear()
+            listed = "".join(f"\n  - {p}" for p in problems)
+            print(f"tendonkit: error: the arguments cannot be used:{listed}", file=sys.stderr)
+            raise SystemExit(EXIT_USAGE)
 
 
 #: Largest seed accepted (numpy's generators take any non-negative integer; 2**63 - 1 keeps

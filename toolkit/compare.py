@@ -25,7 +25,7 @@ from .figures import (
 from .frequency import empirical_response, model_response
 from .metrics import FitRow, fit, fit_table
 from .predict import predict
-from .schema import ARX, Model
+from .schema import ARX, Model, StateSpace
 from .simulate import aligned, divergence, initial_span, simulate
 from .uncertainty import covariance, simulate_band
 
@@ -57,6 +57,31 @@ def rmse(y: np.ndarray, y_hat: np.ndarray) -> np.ndarray:
     return np.sqrt(np.mean((np.asarray(y) - np.asarray(y_hat)) ** 2, axis=0))
 
 
+def _refuse_records_read_whole(model: Model, data: Dataset, initial: str) -> None:
+    """Refuse records a model reproduces from their own outputs, which would score 100 %:
+    an ARX copies its first lags from the measured outputs (in a simulation started from
+    them and in a prediction), and a state space's initial state fitted to a record holding
+    no more output values than it has states matches them exactly."""
+    rep = model.representation
+    ny = len(model.outputs)
+    if isinstance(rep, ARX) and initial in ("estimate", "predict"):
+        lags = initial_span(model)
+        short = [e for e in data.experiments if len(e.y) <= lags]
+        why = f"starts from the first {lags} measured samples of each record"
+    elif isinstance(rep, StateSpace) and initial == "estimate":
+        n = rep.n_states
+        short = [e for e in data.experiments if len(e.y) * ny <= n]
+        why = f"fits its {n} initial states to each record's outputs"
+    else:
+        return
+    if short:
+        listed = ", ".join(f"{e.name or i} ({len(e.y)} samples)" for i, e in enumerate(short))
+        raise DataError(
+            f"model {model.name!r} {why}, which leaves nothing to score in {listed}: give "
+            "longer records."
+        )
+
+
 def _score(
     model: Model,
     data: Dataset,
@@ -80,23 +105,8 @@ def _score(
         raise DataError(
             f"init_window {skip} leaves no sample to score in experiment(s) {', '.join(too_short)}."
         )
-    # an ARX started from the measured outputs copies its first samples (its lags, and k - 1
-    # more for a k-step prediction): a record no longer than that would score 100 % unseen
-    copied = (
-        initial_span(model) + (k - 1 if k else 0)
-        if isinstance(model.representation, ARX) and (k is not None or initial == "estimate")
-        else 0
-    )
-    too_short = [
-        f"{e.name or i} ({len(e.y)} samples)"
-        for i, e in enumerate(data.experiments)
-        if len(e.y) <= copied
-    ]
-    if too_short:
-        raise DataError(
-            f"model {model.name!r} starts from the first {copied} measured samples of each "
-            f"record, which leaves none to score in {', '.join(too_short)}: give longer records."
-        )
+    if init_window is None:
+        _refuse_records_read_whole(model, data, initial if k is None else "predict")
     y = np.vstack([e.y[skip:] for e in data.experiments])
     y_hat = np.vstack([s[skip:] for s in sims])
     names = model.output_names

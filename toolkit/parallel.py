@@ -373,9 +373,10 @@ class _Slot:
     process: Any
     conn: Connection
     task: int | None = None
-    #: When the task's timeout clock started: the worker's word that it began the task, or until
-    #: then the time the task was sent plus :data:`STARTUP_ALLOWANCE_S`.
+    #: When the task's timeout clock started (the worker's word that it began the task), or until
+    #: then the time the task was sent plus :data:`STARTUP_ALLOWANCE_S`, the start-up's deadline.
     since: float = 0.0
+    started: bool = False
 
 
 def _processes(
@@ -405,7 +406,7 @@ def _processes(
             return
         i = queue.popleft()
         attempts[i] += 1
-        slot.task, slot.since = i, time.monotonic() + STARTUP_ALLOWANCE_S
+        slot.task, slot.since, slot.started = i, time.monotonic() + STARTUP_ALLOWANCE_S, False
         try:
             slot.conn.send((i, payloads[i]))
         except OSError:  # the worker died before it could take it: the task waits for another
@@ -420,14 +421,18 @@ def _processes(
         while remaining:
             wait_s = None
             if timeout is not None:
-                busy = [s.since for s in slots if s.task is not None]
-                wait_s = max(0.0, min(busy) + timeout - time.monotonic()) if busy else timeout
+                # each busy worker's deadline: its task's timeout once it began it, else the end
+                # of its start-up allowance
+                busy = [
+                    s.since + (timeout if s.started else 0.0) for s in slots if s.task is not None
+                ]
+                wait_s = max(0.0, min(busy) - time.monotonic()) if busy else timeout
             ready = set(wait([s.conn for s in slots] + [s.process.sentinel for s in slots], wait_s))
             for k, s in enumerate(slots):
                 late = (
                     timeout is not None
                     and s.task is not None
-                    and time.monotonic() - s.since > timeout
+                    and time.monotonic() - s.since > (timeout if s.started else 0.0)
                 )
                 if not (s.conn in ready or s.process.sentinel in ready or late):
                     continue
@@ -437,7 +442,7 @@ def _processes(
                         got = s.conn.recv()
                 if got is not None and got[0] == STARTED:
                     if s.task == got[1]:
-                        s.since = time.monotonic()
+                        s.since, s.started = time.monotonic(), True
                     continue
                 if got is not None:
                     index, value, error, who, seconds = got
@@ -448,7 +453,10 @@ def _processes(
                     continue
                 if late and s.process.is_alive():
                     assert s.task is not None
-                    timed_out.add(s.task)
+                    if s.started:
+                        timed_out.add(s.task)
+                    # else the worker did not start within the allowance: it is replaced and the
+                    # task, which never ran, is started again like a dead worker's
                     s.process.kill()
                 if s.process.is_alive():
                     continue

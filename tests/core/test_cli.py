@@ -203,6 +203,15 @@ def test_two_outputs_of_one_command_never_share_a_file(tmp_path, csv_file, capsy
     assert _identify(tmp_path, data, "-o", str(same), "--json", str(same)) == 2
     assert "-o and --json name the same file" in capsys.readouterr().err
     assert not same.exists()
+    model = tmp_path / "model.json"
+    assert _identify(tmp_path, data, "-o", str(model)) == 0
+    capsys.readouterr()
+    assert main(["compare", str(data), str(model), "--json", str(same), "--plot", str(same)]) == 2
+    assert "--json and --plot name the same path" in capsys.readouterr().err
+    assert not same.exists()
+    args = ["diagnose", str(data), str(data), "--inputs", "u1,u2", "--outputs", "y1,y2"]
+    assert main([*args, "--json", str(same), "--report", str(same)]) == 2
+    assert "--json and --report name the same path" in capsys.readouterr().err
 
 
 def test_a_record_no_longer_than_the_models_lags_is_refused_not_scored(tmp_path, csv_file, capsys):
@@ -218,8 +227,32 @@ def test_a_record_no_longer_than_the_models_lags_is_refused_not_scored(tmp_path,
     assert main(["compare", str(short), str(model)]) == 2
     err = capsys.readouterr().err
     assert "starts from the first 4 measured samples" in err and "short (3 samples)" in err
+    # a k-step prediction copies the same lags; with an initialisation window the window rules
     assert main(["compare", str(short), str(model), "--k", "2"]) == 2
-    assert "first 5 measured samples" in capsys.readouterr().err
+    assert "first 4 measured samples" in capsys.readouterr().err
+    assert main(["compare", str(short), str(model), "--init-window", "2"]) == 0
+
+
+def test_a_state_space_whose_initial_state_fits_the_record_exactly_is_refused():
+    from tendonkit.compare import compare
+    from tendonkit.dataset import Experiment
+    from tendonkit.errors import DataError
+    from tendonkit.testsystems import random_state_space
+
+    model = random_state_space(4, 2, 2, seed=1)  # 4 states, 2 outputs: 2 samples fit exactly
+    rng = np.random.default_rng(0)
+    exp = Experiment(
+        t=np.arange(2) * model.dt, u=rng.normal(size=(2, 2)), y=rng.normal(size=(2, 2))
+    )
+    data = Dataset(inputs=model.input_names, outputs=model.output_names, experiments=(exp,),
+                   dt=model.dt)  # fmt: skip
+    with pytest.raises(DataError, match="fits its 4 initial states"):
+        compare([model], data)
+    longer = Experiment(
+        t=np.arange(3) * model.dt, u=rng.normal(size=(3, 2)), y=rng.normal(size=(3, 2))
+    )
+    res = compare([model], data.with_experiments([longer]))
+    assert res["models"][0]["mean_fit"] < 99.0
 
 
 def test_the_time_column_is_read_in_seconds_whatever_its_unit(tmp_path):
@@ -268,6 +301,19 @@ def test_diagnose_refuses_a_validation_record_the_baseline_reads_whole(tmp_path,
     assert main([*args, "--method", "arx", "--option", "na=4", "--option", "nb=4"]) == 2
     err = capsys.readouterr().err
     assert "leaves nothing to test in the validation record(s) 'short' (3)" in err, err
+
+
+def test_the_parser_reports_bad_values_outside_main_too(capsys):
+    from tendonkit.cli.app import build_parser
+    from tendonkit.cli.common import Parser
+
+    with pytest.raises(SystemExit) as exc:
+        build_parser().parse_args(["diagnose", "a", "b", "--inputs", "u", "--outputs", "y",
+                                   "--alpha", "x"])  # fmt: skip
+    assert exc.value.code == 2 and "--alpha: invalid float value" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:  # --help ends the parse: nothing is left behind
+        build_parser().parse_args(["diagnose", "--alpha", "x", "--help"])
+    assert exc.value.code == 0 and Parser.bad_values == []
 
 
 def test_every_value_argparse_cannot_use_is_listed_at_once(tmp_path, capsys):

@@ -108,6 +108,19 @@ def test_a_workers_start_up_does_not_count_against_its_tasks_timeout():
     assert outs[1].error.startswith("Timeout: the task ran longer than 3 s")
 
 
+def test_a_worker_that_does_not_start_in_time_is_replaced_not_timed_out(monkeypatch):
+    import tendonkit.parallel as parallel
+
+    # the start-up allowance is the master's: 1 s against a 4 s start-up, no retry left (two
+    # jobs: one job runs the tasks in this process)
+    monkeypatch.setattr(parallel, "STARTUP_ALLOWANCE_S", 1.0)
+    outs = list(
+        run_tasks(sleeps_on_one, [0, 2], shared=SlowToLoad(), jobs=2, timeout=30.0, retries=0)
+    )
+    assert [o.value for o in outs] == [None, None]
+    assert all(o.error.startswith("WorkerDied") for o in outs), [o.error for o in outs]
+
+
 @pytest.mark.parametrize(
     ("kwargs", "needle"),
     [

@@ -392,6 +392,16 @@ def test_a_spec_with_mistakes_runs_none_of_its_code_and_json_never_replaces_an_i
     err = capsys.readouterr().err
     assert code == 2 and "draws must be a whole number" in err
     assert not (tmp_path / "IMPORTED").exists()
+    # a plant the spec cannot build (checked after the rest of the spec), and a valid spec with
+    # bad command-line arguments: neither runs the module either
+    user = '[[controllers]]\nname = "mine"\nkind = "python"\nclass = "marks:C"\npath = "."\n'
+    bad.write_text('[plant]\neffects = ["no_such_parameter=1"]\n' + user)
+    assert main(["campaign", str(bad), "--out", str(tmp_path / "o")]) == 2
+    assert "no_such_parameter" in capsys.readouterr().err
+    bad.write_text(user)
+    assert main(["campaign", str(bad), "--out", str(bad), "--jobs", "0"]) == 2
+    assert "--jobs" in capsys.readouterr().err
+    assert not (tmp_path / "IMPORTED").exists()
     # valid otherwise: the class is imported and checked, and its problem is reported
     bad.write_text(
         '[[controllers]]\nname = "mine"\nkind = "python"\nclass = "marks:C"\npath = "."\n'
@@ -412,4 +422,8 @@ def test_a_spec_with_mistakes_runs_none_of_its_code_and_json_never_replaces_an_i
         err = capsys.readouterr().err
         assert code == 2 and "is also an input; refusing to overwrite it" in err, err
     assert {p: p.read_bytes() for p in before} == before
+    code = main(
+        ["campaign", str(spec), "--out", str(tmp_path / "t"), "--json", str(tmp_path / "t")]
+    )
+    assert code == 2 and "--json and --out name the same path" in capsys.readouterr().err
     assert not (tmp_path / "t").exists()

@@ -83,9 +83,7 @@ def build_parser() -> Parser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit status."""
     parser = build_parser()
-    Parser.bad_values.clear()
     args = parser.parse_args(argv)
-    parser.report_bad_values()
     if not getattr(args, "func", None):
         parser.print_help()
         return EXIT_USAGE

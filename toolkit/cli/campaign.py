@@ -24,7 +24,7 @@ from typing import Any
 
 from ..errors import OptionError
 from ..parallel import default_jobs, task_problems
-from ..robot.campaign import load_spec, run_campaign
+from ..robot.campaign import load_spec, run_campaign, user_class_problems
 from ..robot.campaign_report import render
 from .common import check_output_dir, check_output_path, raise_problems, write_json
 
@@ -66,12 +66,25 @@ def add_commands(sub: Any) -> None:
     p.set_defaults(func=cmd_campaign)
 
 
+def _read_by(spec: Any, path: str) -> list[str | Path]:
+    """The files a campaign reads: its spec, its models and its python controllers' modules."""
+    read: list[str | Path] = [path]
+    for c in spec.controllers if spec is not None else ():
+        if c.model:
+            read.append(c.model)
+        if c.kind == "python" and c.cls:
+            module = str(c.cls).partition(":")[0].replace(".", "/")
+            base = Path(c.path) if c.path else Path(path).resolve().parent
+            read += [base / f"{module}.py", base / module / "__init__.py"]
+    return read
+
+
 def cmd_campaign(args: argparse.Namespace) -> int:
     """Run the campaign; 0 when it passes, 1 when its pass rate is below the spec's minimum."""
     problems: list[str] = []
     spec = None
     try:
-        spec = load_spec(args.spec)
+        spec = load_spec(args.spec, check_classes=False)  # the user's classes: last, below
     except OptionError as exc:
         problems.append(str(exc).replace("\n", "\n   "))
     # the engine's own checks, named as the options are named here
@@ -84,9 +97,13 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     if out is not None:
         check_output_dir(out, [args.spec], problems, what="--out")
     if args.json:
-        # never over the spec or a model it reads (the summary would replace it)
-        read = [args.spec] + [c.model for c in spec.controllers if c.model] if spec else [args.spec]
-        check_output_path(args.json, read, problems, what="--json")
+        # never over the spec, a model or a controller's module it reads, nor the --out folder
+        check_output_path(args.json, _read_by(spec, args.spec), problems, what="--json")
+        if out is not None and Path(args.json).resolve() == out.resolve():
+            problems.append("--json and --out name the same path.")
+    if not problems and spec is not None:
+        # the user's controller modules run when imported: only once nothing else is wrong
+        problems += user_class_problems(spec)
     raise_problems(problems, "tendonkit campaign cannot run:")
     assert spec is not None and out is not None
     print(

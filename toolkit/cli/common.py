@@ -74,8 +74,31 @@ class Parser(argparse.ArgumentParser):
     another reason, else by :meth:`report_bad_values` once the arguments are parsed.
     """
 
-    #: Problems of the values parsed so far (class-level: one parse spans the subparsers).
+    #: Problems of the values parsed so far (class-level: one parse spans the subparsers; the
+    #: command line is parsed in one thread).
     bad_values: ClassVar[list[str]] = []
+    _depth: ClassVar[int] = 0
+
+    def parse_known_args(  # type: ignore[override]
+        self, args: Sequence[str] | None = None, namespace: argparse.Namespace | None = None
+    ) -> tuple[argparse.Namespace, list[str]]:
+        """The outermost parse (a subcommand's is nested in it) starts with no problems and
+        reports the values it could not use, also when argparse itself ends early (--help)."""
+        outer = Parser._depth == 0
+        if outer:
+            Parser.bad_values.clear()
+        Parser._depth += 1
+        try:
+            result = super().parse_known_args(args, namespace)
+        except BaseException:
+            if outer:
+                Parser.bad_values.clear()
+            raise
+        finally:
+            Parser._depth -= 1
+        if outer:
+            self.report_bad_values()
+        return result
 
     def _get_value(self, action: argparse.Action, arg_string: str) -> Any:
         try:

@@ -139,6 +139,9 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
             check_output_path(out, files, problems, what=option, creates=[args.report])
     if args.json and args.model and Path(args.json).resolve() == Path(args.model).resolve():
         problems.append("--json and --model name the same file.")
+    for option, out in (("--json", args.json), ("--model", args.model)):
+        if out and args.report and Path(out).resolve() == Path(args.report).resolve():
+            problems.append(f"{option} and --report name the same path.")
     data = []
     for path in (args.train, args.valid):
         try:

@@ -261,6 +261,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
         check_output_path(args.json, args.files, problems, what="--json")
     if args.plot:
         check_output_dir(args.plot, args.files, problems, what="--plot")
+    if args.json and args.plot and Path(args.json).resolve() == Path(args.plot).resolve():
+        problems.append("--json and --plot name the same path.")
     datasets: dict[tuple[tuple[str, ...], tuple[str, ...]], Dataset] = {}
     for m in models if data_files else []:
         key = (tuple(m.input_names), tuple(m.output_names))

@@ -246,15 +246,7 @@ def diagnose(
         unit="step",
     )
     base = choose_baseline(train, method, settings)
-    span = initial_span(base.model) if isinstance(base.model.representation, ARX) else 0
-    short = [f"{e.name!r} ({e.n_samples})" for e in valid.experiments if e.n_samples <= span]
-    if short:
-        # an ARX simulation copies its first lags from the measured outputs: nothing to test
-        raise DataError(
-            f"diagnose cannot run: the baseline ({base.method}) starts from the first {span} "
-            f"measured samples of a record, which leaves nothing to test in the validation "
-            f"record(s) {', '.join(short)}: give longer validation records."
-        )
+    _refuse_short_validation(base, valid)
     if base.selected is not None and base.choice and base.choice["dead_time_left_to_diagnosis"]:
         base.choice["selected_validation_fit"] = mean_fit(base.selected, valid)
     bar.update()
@@ -428,6 +420,28 @@ class Trial:
     build: Any = None
     prediction_loss: FloatArray | None = None
     horizon_loss: FloatArray | None = None
+
+
+def _refuse_short_validation(base: Baseline, valid: Dataset) -> None:
+    """A validation record the baseline reproduces from its own outputs has nothing to test:
+    an ARX copies its first lags from them, a state space fits its initial state to them
+    (exactly, when the record holds no more output values than it has states)."""
+    rep = base.model.representation
+    if isinstance(rep, ARX):
+        limit, why = initial_span(base.model), "starts from the first {} measured samples"
+        short = [e for e in valid.experiments if e.n_samples <= limit]
+    elif isinstance(rep, StateSpace):
+        limit, why = rep.n_states, "fits its {} initial states to the outputs"
+        short = [e for e in valid.experiments if e.n_samples * valid.ny <= limit]
+    else:
+        return
+    if short:
+        listed = ", ".join(f"{e.name!r} ({e.n_samples})" for e in short)
+        raise DataError(
+            f"diagnose cannot run: the baseline ({base.method}) {why.format(limit)} of a record, "
+            f"which leaves nothing to test in the validation record(s) {listed}: give longer "
+            "validation records."
+        )
 
 
 def auto_baseline(

@@ -327,7 +327,7 @@ class CampaignSpec:
         return out
 
 
-def load_spec(path: str | Path) -> CampaignSpec:
+def load_spec(path: str | Path, *, check_classes: bool = True) -> CampaignSpec:
     """Read and validate a campaign TOML file (nothing in it is executed but, once everything
     else is valid, the imports of its ``python`` controllers' modules).
 
@@ -345,7 +345,9 @@ def load_spec(path: str | Path) -> CampaignSpec:
         raise OptionError(f"Campaign spec {str(p)!r} cannot be read: {exc}") from None
     except tomllib.TOMLDecodeError as exc:
         raise OptionError(f"Campaign spec {str(p)!r} is not valid TOML: {exc}") from None
-    return spec_from_dict(data, base_dir=p.resolve().parent, source=str(p))
+    return spec_from_dict(
+        data, base_dir=p.resolve().parent, source=str(p), check_classes=check_classes
+    )
 
 
 def _unknown(
@@ -363,7 +365,11 @@ def _number(x: Any) -> bool:
 
 
 def spec_from_dict(
-    data: dict[str, Any], base_dir: str | Path = ".", source: str = "campaign"
+    data: dict[str, Any],
+    base_dir: str | Path = ".",
+    source: str = "campaign",
+    *,
+    check_classes: bool = True,
 ) -> CampaignSpec:
     """Validate a campaign given as a dictionary (the TOML file's structure, docs/campaigns.md).
 
@@ -373,7 +379,7 @@ def spec_from_dict(
         Listing every problem found.
     """
     try:
-        return _spec_from_dict(data, Path(base_dir), source)
+        return _spec_from_dict(data, Path(base_dir), source, check_classes)
     except (TypeError, AttributeError) as exc:  # a value of a type no check foresaw
         raise OptionError(
             f"Invalid campaign {source}: a value has the wrong type ({exc}); docs/campaigns.md "
@@ -381,7 +387,9 @@ def spec_from_dict(
         ) from None
 
 
-def _spec_from_dict(data: dict[str, Any], base_dir: Path, source: str) -> CampaignSpec:
+def _spec_from_dict(
+    data: dict[str, Any], base_dir: Path, source: str, check_classes: bool = True
+) -> CampaignSpec:
     # lazy: keeps the robot room off tendonkit.fmu until a campaign is read
     from tendonkit.fmu.build import PARAMETER_RANGES, PRESETS, plant_parameters
 
@@ -500,10 +508,6 @@ def _spec_from_dict(data: dict[str, Any], base_dir: Path, source: str) -> Campai
         base_dir=base,
         timeout_s=float(timeout_s),
     )
-    if not problems:
-        # a user's controller class is imported (its module runs) only once everything else in
-        # the spec is valid: a spec with mistakes is read without executing anything
-        _check_user_classes(imports, problems)
     if not problems and spec.n_runs > 1_000_000:
         problems.append(f"the campaign has {spec.n_runs} runs; at most 1,000,000 in one spec")
     if not problems:
@@ -522,8 +526,26 @@ def _spec_from_dict(data: dict[str, Any], base_dir: Path, source: str) -> Campai
                     if len(bad) >= 3:
                         break
             problems.extend(f"[plant] {b}" for b in bad)
+    if not problems and check_classes:
+        # a user's controller class is imported (its module runs) only once everything else in
+        # the spec is valid: a spec with mistakes is read without executing anything
+        _check_user_classes(imports, problems)
     raise_if(problems, OptionError, f"Invalid campaign {source}:")
     return spec
+
+
+def user_class_problems(spec: CampaignSpec) -> list[str]:
+    """Import each ``python`` controller's class of ``spec`` and check its options (the last
+    check of :func:`load_spec`, for callers that read the spec with ``check_classes=False`` and
+    have checks of their own to make first)."""
+    problems: list[str] = []
+    imports = [
+        (f"[[controllers]] {c.name!r}", str(c.cls), c.path, dict(c.options))
+        for c in spec.controllers
+        if c.kind == "python"
+    ]
+    _check_user_classes(imports, problems)
+    return problems
 
 
 def _vary(

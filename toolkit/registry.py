@@ -225,7 +225,23 @@ def create_options(factory: type, options: dict[str, Any]) -> Any:
         raise OptionError(f"Invalid options for {getattr(factory, 'name', '?')}: {exc}") from None
 
 
+#: How an option's type reads in a message.
+_PLAIN = {int: "whole number", float: "number", bool: "true/false", str: "text"}
+
+
 def _type_name(tp: Any) -> str:
+    """An option's type in words: ``int | Literal['auto']`` -> ``whole number or 'auto'``."""
+    origin, args = typing.get_origin(tp), typing.get_args(tp)
+    if origin in (typing.Union, types.UnionType):
+        names = [_type_name(a) for a in args if a is not type(None)]
+        names += ["none"] if type(None) in args else []
+        return names[0] if len(names) == 1 else ", ".join(names[:-1]) + " or " + names[-1]
+    if origin is typing.Literal:
+        return " or ".join(repr(a) for a in args)
+    if origin in (tuple, list) and args:
+        return f"{origin.__name__} of {_type_name(args[0])}s"
+    if tp in _PLAIN:
+        return _PLAIN[tp]
     return getattr(tp, "__name__", None) or str(tp).replace("typing.", "")
 
 

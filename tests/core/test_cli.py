@@ -106,7 +106,9 @@ def test_bad_option_values_are_reported(tmp_path, csv_file):
         str(tmp_path / "m.json"),
     )
     assert r.returncode == 2 and "Traceback" not in r.stderr
-    assert "nb='x' is not a valid" in r.stderr and "unknown option 'bogus'" in r.stderr
+    assert "unknown option 'bogus'" in r.stderr
+    # the type in words, not Python's (it said "is not a valid Union")
+    assert "nb='x' is not a valid whole number, tuple of whole numbers or 'auto'." in r.stderr
 
 
 def test_refuses_to_overwrite_an_input(tmp_path, csv_file):
@@ -332,3 +334,11 @@ def test_every_value_argparse_cannot_use_is_listed_at_once(tmp_path, capsys):
     for needle in ("--reference: invalid choice: 'spiral'", "--duration: expected a finite",
                    "--R: invalid float value: 'abc'"):  # fmt: skip
         assert needle in err, needle
+
+
+def test_collect_checks_radii_in_the_unit_they_are_given(tmp_path, capsys):
+    out = tmp_path / "c.csv"
+    assert main(["collect", "--protocol", "circles", "--radii", "100", "2", "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "--radii: 100 cm is outside 0.01 to 15 cm" in err and "1.0" not in err
+    assert not out.exists()

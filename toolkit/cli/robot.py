@@ -140,9 +140,15 @@ def _radii(items: list[str] | None, problems: list[str]) -> list[float] | None:
             if not part.strip():
                 continue
             try:
-                out.append(float(part) / 100.0)
+                cm = float(part)
             except ValueError:
                 problems.append(f"--radii: {part!r} is not a number (cm).")
+                continue
+            # checked here in the unit the user wrote (the protocol checks metres)
+            if not 0.01 <= cm <= 15.0:
+                problems.append(f"--radii: {part.strip()} cm is outside 0.01 to 15 cm.")
+                continue
+            out.append(cm / 100.0)
     if not out:
         problems.append("--radii names no radius.")
     return out

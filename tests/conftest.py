@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -27,6 +28,25 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
         if "real_data" in getattr(item, "fixturenames", ()):
             item.add_marker(pytest.mark.real_data)
     items.sort(key=lambda item: item.get_closest_marker("first") is None)  # stable
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _temporary_files_stay_in_basetemp(tmp_path_factory: pytest.TempPathFactory) -> Any:
+    """Temporary files made by the tests and the commands they run (fmpy unpacks every FMU it opens into one,
+    and a test that opens an FMU by hand does not delete it) go under pytest's base folder,
+    which pytest rotates, so a run leaves nothing in the system's temporary folder (a run left
+    about 150 unpacked FMUs there, binaries included)."""
+    import tempfile
+
+    folder = str(tmp_path_factory.mktemp("tempfile"))
+    before, env = tempfile.tempdir, os.environ.get("TMPDIR")
+    tempfile.tempdir = os.environ["TMPDIR"] = folder  # the commands tests run inherit it
+    yield
+    tempfile.tempdir = before
+    if env is None:
+        os.environ.pop("TMPDIR", None)
+    else:
+        os.environ["TMPDIR"] = env
 
 
 @pytest.fixture

@@ -32,10 +32,10 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
 
 @pytest.fixture(scope="session", autouse=True)
 def _temporary_files_stay_in_basetemp(tmp_path_factory: pytest.TempPathFactory) -> Any:
-    """Temporary files made by the tests and the commands they run (fmpy unpacks every FMU it opens into one,
-    and a test that opens an FMU by hand does not delete it) go under pytest's base folder,
-    which pytest rotates, so a run leaves nothing in the system's temporary folder (a run left
-    about 150 unpacked FMUs there, binaries included)."""
+    """Temporary files made by the tests and the commands they run go under pytest's base
+    folder, which pytest rotates: fmpy unpacks every FMU it opens into a temporary folder, and
+    a test that opens an FMU by hand does not delete it (a run left about 150 unpacked FMUs,
+    binaries included, in the system's temporary folder)."""
     import tempfile
 
     folder = str(tmp_path_factory.mktemp("tempfile"))

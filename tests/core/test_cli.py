@@ -341,4 +341,5 @@ def test_collect_checks_radii_in_the_unit_they_are_given(tmp_path, capsys):
     assert main(["collect", "--protocol", "circles", "--radii", "100", "2", "-o", str(out)]) == 2
     err = capsys.readouterr().err
     assert "--radii: 100 cm is outside 0.01 to 15 cm" in err and "1.0" not in err
+    assert "names no radius" not in err  # the refused radius says why
     assert not out.exists()

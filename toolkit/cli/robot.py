@@ -149,8 +149,8 @@ def _radii(items: list[str] | None, problems: list[str]) -> list[float] | None:
                 problems.append(f"--radii: {part.strip()} cm is outside 0.01 to 15 cm.")
                 continue
             out.append(cm / 100.0)
-    if not out:
-        problems.append("--radii names no radius.")
+    if not any(part.strip() for item in items for part in item.split(",")):
+        problems.append("--radii names no radius.")  # (a radius refused above says why)
     return out
 
 

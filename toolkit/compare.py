@@ -25,8 +25,8 @@ from .figures import (
 from .frequency import empirical_response, model_response
 from .metrics import FitRow, fit, fit_table
 from .predict import predict
-from .schema import ARX, Model, StateSpace
-from .simulate import aligned, divergence, initial_span, simulate
+from .schema import Model
+from .simulate import aligned, divergence, read_whole, simulate
 from .uncertainty import covariance, simulate_band
 
 #: Per-model additions to a row of :func:`compare`: ``(model, data, sims, name) -> dict``.
@@ -58,27 +58,14 @@ def rmse(y: np.ndarray, y_hat: np.ndarray) -> np.ndarray:
 
 
 def _refuse_records_read_whole(model: Model, data: Dataset, initial: str) -> None:
-    """Refuse records a model reproduces from their own outputs, which would score 100 %:
-    an ARX copies its first lags from the measured outputs (in a simulation started from
-    them and in a prediction), and a state space's initial state fitted to a record holding
-    no more output values than it has states matches them exactly."""
-    rep = model.representation
-    ny = len(model.outputs)
-    if isinstance(rep, ARX) and initial in ("estimate", "predict"):
-        lags = initial_span(model)
-        short = [e for e in data.experiments if len(e.y) <= lags]
-        why = f"starts from the first {lags} measured samples of each record"
-    elif isinstance(rep, StateSpace) and initial == "estimate":
-        n = rep.n_states
-        short = [e for e in data.experiments if len(e.y) * ny <= n]
-        why = f"fits its {n} initial states to each record's outputs"
-    else:
-        return
+    """Refuse records ``model`` reproduces from their own outputs (:func:`read_whole`)."""
+    why = [(i, e, read_whole(model, len(e.y), initial)) for i, e in enumerate(data.experiments)]
+    short = [(i, e, w) for i, e, w in why if w]
     if short:
-        listed = ", ".join(f"{e.name or i} ({len(e.y)} samples)" for i, e in enumerate(short))
+        listed = ", ".join(f"{e.name or i} ({len(e.y)} samples)" for i, e, _ in short)
         raise DataError(
-            f"model {model.name!r} {why}, which leaves nothing to score in {listed}: give "
-            "longer records."
+            f"model {model.name!r} {short[0][2]}, which leaves nothing to score in {listed}: "
+            "give longer records."
         )
 
 

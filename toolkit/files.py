@@ -74,7 +74,9 @@ def check_input_file(path: str | Path, problems: list[str], what: str = "input")
     return True
 
 
-def _same_file(a: Path, b: Path) -> bool:
+def same_file(a: str | Path, b: str | Path) -> bool:
+    """Whether two paths name one file or folder (after resolving links; hard links too)."""
+    a, b = Path(a), Path(b)
     try:
         return a.resolve() == b.resolve() or (a.exists() and b.exists() and a.samefile(b))
     except OSError:
@@ -96,7 +98,7 @@ def check_output_path(
     """
     p = Path(path)
     for src in inputs:
-        if _same_file(p, Path(src)):
+        if same_file(p, Path(src)):
             problems.append(f"{what} {str(path)!r} is also an input; refusing to overwrite it.")
             break
     try:
@@ -133,7 +135,7 @@ def check_output_dir(
         problems.append(f"{what} {str(path)!r} exists and is not a folder.")
         return
     for src in inputs:
-        if _same_file(p, Path(src)):
+        if same_file(p, Path(src)):
             problems.append(f"{what} {str(path)!r} is also an input.")
             return
     if not p.exists() and not p.resolve().parent.is_dir():

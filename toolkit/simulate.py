@@ -229,6 +229,25 @@ def inner_outputs(model: Model, y: FloatArray, samples: int | None = None) -> Fl
     return out
 
 
+def read_whole(model: Model, n_samples: int, initial: str = "estimate") -> str | None:
+    """Why ``model`` reproduces a record of ``n_samples`` from its own measured outputs, which
+    would score 100 % with nothing left to score; None when it does not.
+
+    An ARX started from the measured outputs copies its first lags (a simulation, and a
+    prediction: ``initial="predict"``); a state space's initial state estimated from a record
+    holding no more output values than it has states matches them exactly.
+    """
+    rep = model.representation
+    if isinstance(rep, ARX) and initial in ("estimate", "predict"):
+        lags = initial_span(model)
+        if n_samples <= lags:
+            return f"starts from the first {lags} measured samples of each record"
+    elif isinstance(rep, StateSpace) and initial == "estimate":
+        if n_samples * len(model.outputs) <= rep.n_states:
+            return f"fits its {rep.n_states} initial states to each record's outputs"
+    return None
+
+
 def initial_span(model: Model, window: int | None = None) -> int:
     """How many leading output samples ``initial="estimate"`` reads (at most)."""
     rep = model.representation
@@ -729,6 +748,7 @@ __all__ = [
     "fractional_delay",
     "play_operator",
     "rate_limiter",
+    "read_whole",
     "simulate",
     "simulate_dataset",
     "sparse_map_recursion",

@@ -26,7 +26,7 @@ from ..errors import OptionError
 from ..parallel import default_jobs, task_problems
 from ..robot.campaign import load_spec, run_campaign, user_class_problems
 from ..robot.campaign_report import render
-from .common import check_output_dir, check_output_path, raise_problems, write_json
+from .common import check_output_dir, check_output_path, raise_problems, same_file, write_json
 
 __all__ = ["add_commands", "cmd_campaign"]
 
@@ -99,7 +99,7 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     if args.json:
         # never over the spec, a model or a controller's module it reads, nor the --out folder
         check_output_path(args.json, _read_by(spec, args.spec), problems, what="--json")
-        if out is not None and Path(args.json).resolve() == out.resolve():
+        if out is not None and same_file(args.json, out):
             problems.append("--json and --out name the same path.")
     if not problems and spec is not None:
         # the user's controller modules run when imported: only once nothing else is wrong

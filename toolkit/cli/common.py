@@ -27,6 +27,7 @@ from ..files import (
     check_output_dir,
     check_output_path,
     prepare_output_dir,
+    same_file,
     write_json,
 )
 from ..manager import identifiers
@@ -51,6 +52,7 @@ __all__ = [
     "positive_float",
     "prepare_output_dir",
     "raise_problems",
+    "same_file",
     "seed_argument",
     "split_names",
     "write_json",

@@ -23,6 +23,7 @@ from .common import (
     identifier_arguments,
     output_dirs,
     raise_problems,
+    same_file,
     seed_argument,
     split_names,
     write_json,
@@ -137,10 +138,10 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     for option, out in (("--json", args.json), ("--model", args.model)):
         if out:
             check_output_path(out, files, problems, what=option, creates=[args.report])
-    if args.json and args.model and Path(args.json).resolve() == Path(args.model).resolve():
+    if args.json and args.model and same_file(args.json, args.model):
         problems.append("--json and --model name the same file.")
     for option, out in (("--json", args.json), ("--model", args.model)):
-        if out and args.report and Path(out).resolve() == Path(args.report).resolve():
+        if out and args.report and same_file(out, args.report):
             problems.append(f"{option} and --report name the same path.")
     data = []
     for path in (args.train, args.valid):

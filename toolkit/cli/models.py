@@ -24,6 +24,7 @@ from .common import (
     noted,
     output_dirs,
     raise_problems,
+    same_file,
     write_json,
 )
 
@@ -95,7 +96,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
     check_output_path(args.output, args.data, problems)
     if args.json:
         check_output_path(args.json, args.data, problems, what="--json")
-        if Path(args.json).resolve() == Path(args.output).resolve():
+        if same_file(args.json, args.output):
             problems.append(
                 "-o and --json name the same file; the summary would replace the model."
             )
@@ -261,7 +262,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         check_output_path(args.json, args.files, problems, what="--json")
     if args.plot:
         check_output_dir(args.plot, args.files, problems, what="--plot")
-    if args.json and args.plot and Path(args.json).resolve() == Path(args.plot).resolve():
+    if args.json and args.plot and same_file(args.json, args.plot):
         problems.append("--json and --plot name the same path.")
     datasets: dict[tuple[tuple[str, ...], tuple[str, ...]], Dataset] = {}
     for m in models if data_files else []:

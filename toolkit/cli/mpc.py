@@ -45,6 +45,7 @@ from .common import (
     load_model,
     positive_float,
     raise_problems,
+    same_file,
     seed_argument,
     write_json,
 )
@@ -169,7 +170,7 @@ def cmd_mpc(args: argparse.Namespace) -> int:
         check_output_path(args.json, inputs, problems)
     if args.plot:  # a folder of figures: checked before the co-simulation runs
         check_output_dir(args.plot, inputs, problems, what="--plot")
-    if args.plot and args.json and Path(args.plot).resolve() == Path(args.json).resolve():
+    if args.plot and args.json and same_file(args.plot, args.json):
         problems.append("--json and --plot name the same path.")
     if args.horizon is not None and not 1 <= args.horizon <= MAX_HORIZON:
         problems.append(

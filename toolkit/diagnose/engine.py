@@ -68,7 +68,7 @@ from ..output_error import refine as refine_by_simulation
 from ..parallel import map_tasks
 from ..predict import predict, predicts_ahead
 from ..schema import ARX, Block, Model, StateSpace
-from ..simulate import aligned, initial_span
+from ..simulate import aligned, initial_span, read_whole
 from .effect import (
     Context,
     DirectTest,
@@ -423,24 +423,16 @@ class Trial:
 
 
 def _refuse_short_validation(base: Baseline, valid: Dataset) -> None:
-    """A validation record the baseline reproduces from its own outputs has nothing to test:
-    an ARX copies its first lags from them, a state space fits its initial state to them
-    (exactly, when the record holds no more output values than it has states)."""
-    rep = base.model.representation
-    if isinstance(rep, ARX):
-        limit, why = initial_span(base.model), "starts from the first {} measured samples"
-        short = [e for e in valid.experiments if e.n_samples <= limit]
-    elif isinstance(rep, StateSpace):
-        limit, why = rep.n_states, "fits its {} initial states to the outputs"
-        short = [e for e in valid.experiments if e.n_samples * valid.ny <= limit]
-    else:
-        return
+    """A validation record the baseline reproduces from its own outputs has nothing to test
+    (:func:`tendonkit.simulate.read_whole`)."""
+    why = [(e, read_whole(base.model, e.n_samples)) for e in valid.experiments]
+    short = [(e, w) for e, w in why if w]
     if short:
-        listed = ", ".join(f"{e.name!r} ({e.n_samples})" for e in short)
+        listed = ", ".join(f"{e.name!r} ({e.n_samples})" for e, _ in short)
         raise DataError(
-            f"diagnose cannot run: the baseline ({base.method}) {why.format(limit)} of a record, "
-            f"which leaves nothing to test in the validation record(s) {listed}: give longer "
-            "validation records."
+            f"diagnose cannot run: the baseline ({base.method}) {short[0][1]}, which leaves "
+            f"nothing to test in the validation record(s) {listed}: give longer validation "
+            "records."
         )
 
 

@@ -457,8 +457,7 @@ def _spec_from_dict(
     fixed = {str(e).partition("=")[0].strip() for e in effects}
     vary = _vary(plant.get("vary", {}), PARAMETER_RANGES, fixed, problems)
 
-    imports: list[tuple[str, str, str | None, dict[str, Any]]] = []
-    controllers = _controllers(data.get("controllers"), base, problems, imports)
+    controllers = _controllers(data.get("controllers"), base, problems)
     references = _references(data.get("references"), problems)
 
     require = crit.get("require", [])
@@ -529,22 +528,29 @@ def _spec_from_dict(
     if not problems and check_classes:
         # a user's controller class is imported (its module runs) only once everything else in
         # the spec is valid: a spec with mistakes is read without executing anything
-        _check_user_classes(imports, problems)
+        problems.extend(user_class_problems(spec))
     raise_if(problems, OptionError, f"Invalid campaign {source}:")
     return spec
 
 
 def user_class_problems(spec: CampaignSpec) -> list[str]:
-    """Import each ``python`` controller's class of ``spec`` and check its options (the last
-    check of :func:`load_spec`, for callers that read the spec with ``check_classes=False`` and
-    have checks of their own to make first)."""
+    """Import each ``python`` controller's class of ``spec`` and check its options against its
+    signature (the last check of :func:`load_spec`, for callers that read the spec with
+    ``check_classes=False`` and have checks of their own to make first)."""
     problems: list[str] = []
-    imports = [
-        (f"[[controllers]] {c.name!r}", str(c.cls), c.path, dict(c.options))
-        for c in spec.controllers
-        if c.kind == "python"
-    ]
-    _check_user_classes(imports, problems)
+    for c in spec.controllers:
+        if c.kind != "python":
+            continue
+        where, target = f"[[controllers]] {c.name!r}", str(c.cls)
+        try:
+            cls = _user_class(target, c.path)
+            inspect.signature(cls).bind(**c.options)
+        except OptionError as exc:
+            problems.append(f"{where}: {exc}")
+        except TypeError as exc:
+            problems.append(f"{where}: options do not fit {target}: {exc}")
+        except ValueError:  # no signature to check (a builtin): the runs will tell
+            pass
     return problems
 
 
@@ -622,29 +628,8 @@ def _vary(
     return out
 
 
-def _check_user_classes(
-    imports: list[tuple[str, str, str | None, dict[str, Any]]], problems: list[str]
-) -> None:
-    """Import each user controller class and check its options against its signature."""
-    for where, target, full_path, options in imports:
-        try:
-            cls = _user_class(target, full_path)
-            inspect.signature(cls).bind(**options)
-        except OptionError as exc:
-            problems.append(f"{where}: {exc}")
-        except TypeError as exc:
-            problems.append(f"{where}: options do not fit {target}: {exc}")
-        except ValueError:  # no signature to check (a builtin): the runs will tell
-            pass
-
-
-def _controllers(
-    items: Any,
-    base: Path,
-    problems: list[str],
-    imports: list[tuple[str, str, str | None, dict[str, Any]]],
-) -> list[ControllerSpec]:
-    """The controller tables; a user class is only recorded in ``imports`` (checked later)."""
+def _controllers(items: Any, base: Path, problems: list[str]) -> list[ControllerSpec]:
+    """The controller tables; a user class is not imported here (:func:`user_class_problems`)."""
     if not (isinstance(items, list) and items and all(isinstance(i, dict) for i in items)):
         problems.append("[[controllers]]: give at least one controller table")
         return []
@@ -702,7 +687,6 @@ def _controllers(
                 problems.append(f"{where}: options must be a table")
                 continue
             full_path = str((base / path).resolve()) if isinstance(path, str) else None
-            imports.append((where, target, full_path, dict(options)))
             out.append(
                 ControllerSpec(name, kind, cls=target, path=full_path, options=dict(options))
             )

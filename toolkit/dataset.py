@@ -479,6 +479,7 @@ def _read_csv(
     bad_cells: list[str] = []
     ragged: list[int] = []
     blank: list[int] = []
+    bad_time = 0  # cells of the time column that are not numbers (reported with the others)
     for i, row in enumerate(rows):
         if len(row) != len(header):
             (ragged if any(c.strip() for c in row) else blank).append(i + 2)
@@ -487,6 +488,7 @@ def _read_csv(
             try:
                 values[i, j] = float(cell)
             except ValueError:
+                bad_time += header[j] == time
                 if len(bad_cells) < 5 and header[j] in requested:
                     bad_cells.append(f"row {i + 2}, column {header[j]!r}: {cell!r}")
                 elif header[j] in requested:
@@ -525,29 +527,35 @@ def _read_csv(
             t = t * scale
             file_units = {**file_units, time: "s"}
     dt = 0.0
+    # rows already reported (ragged, blank, a time that is not a number) are not reported
+    # again: the time checks run on the other rows, numbered as in the file
+    read = np.ones(len(rows), dtype=bool)
+    read[[r - 2 for r in ragged + blank]] = False
+    if np.count_nonzero(read & ~np.isfinite(t)) > bad_time:  # NaN or inf written as numbers
+        p.append(f"{where}: time column {time!r} has missing or non-numeric values.")
+    ok = read & np.isfinite(t)
+    line, tr = np.flatnonzero(ok) + 2, t[ok]
     if len(t) < 2:
         p.append(f"{where}: {len(t)} data rows; at least 2 are needed.")
-    elif np.all(np.isfinite(t)):
-        d = np.diff(t)
+    elif len(tr) >= 2:
+        d = np.diff(tr)
         if np.any(d <= 0):
             k = int(np.argmax(d <= 0))
             p.append(
-                f"{where}: time column {time!r} must increase; row {k + 3} has t = {t[k + 1]:g} s "
-                f"after {t[k]:g} s."
+                f"{where}: time column {time!r} must increase; row {line[k + 1]} has "
+                f"t = {tr[k + 1]:g} s after {tr[k]:g} s."
             )
         else:
             # Twelve significant digits: timestamps written as decimals of k·dt carry rounding
             # noise (0.030000000000001137) that would leak into models and FMUs' step sizes.
             dt = float(f"{np.median(d):.12g}")
             dev = np.abs(d - dt)
-            if np.any(dev > dt_tol * dt):
+            if np.any(dev > dt_tol * dt) and ok.all():  # a row left out is a step of 2 dt
                 k = int(np.argmax(dev))
                 p.append(
-                    f"{where}: sampling is not uniform: step {d[k]:g} s at row {k + 3} differs from "
-                    f"the median {dt:g} s by more than {dt_tol:.0%} (the tolerance)."
+                    f"{where}: sampling is not uniform: step {d[k]:g} s at row {line[k + 1]} "
+                    f"differs from the median {dt:g} s by more than {dt_tol:.0%} (the tolerance)."
                 )
-    else:
-        p.append(f"{where}: time column {time!r} has missing or non-numeric values.")
     if p:
         return None, 0.0, p
     extra = {

@@ -111,6 +111,18 @@ def test_bad_option_values_are_reported(tmp_path, csv_file):
     assert "nb='x' is not a valid whole number, tuple of whole numbers or 'auto'." in r.stderr
 
 
+def test_empty_column_names_are_refused(tmp_path, csv_file):
+    """``--inputs ""`` built a model with no inputs (1.5 % fit) and ``u1,,u2`` dropped the gap."""
+    out = tmp_path / "m.json"
+    r = run("identify", str(csv_file()), "--inputs", "", "--outputs", "y1,", "-o", str(out))
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert "--inputs names no column." in r.stderr
+    assert "--outputs 'y1,' has an empty name" in r.stderr
+    r = run("identify", str(csv_file()), "--inputs", "u1,,u2", "--outputs", "y1", "-o", str(out))
+    assert r.returncode == 2 and "--inputs 'u1,,u2' has an empty name" in r.stderr
+    assert not out.exists()
+
+
 def test_refuses_to_overwrite_an_input(tmp_path, csv_file):
     data = csv_file()
     before = data.read_bytes()

@@ -47,6 +47,23 @@ def test_time_problems_state_the_tolerance(tmp_path):
         Dataset.from_csv(path, ["u"], ["y"])
 
 
+def test_a_ragged_row_is_reported_once_and_the_rest_still_checked(tmp_path):
+    """A row with too many fields is one problem, not also a 'missing time'; the time checks
+    still run on the rows that were read, numbered as in the file."""
+    rows = [[0.0, 1, 2], [0.1, 2, 3, 9], [0.2, 3, 1], [0.15, 1, 2], ["x", 1, 2], [0.5, 1, 2]]
+    path = _write(tmp_path, "r.csv", ["t", "u", "y"], rows)
+    with pytest.raises(DataError) as info:
+        Dataset.from_csv(path, ["u"], ["y"])
+    assert info.value.problems == [
+        f"{path}: 1 rows do not have 3 fields (rows 3).",
+        f"{path}: non-numeric values: row 6, column 't': 'x'.",
+        f"{path}: time column 't' must increase; row 5 has t = 0.15 s after 0.2 s.",
+    ]
+    path = _write(tmp_path, "n.csv", ["t", "u", "y"], [[0.0, 1, 2], ["nan", 2, 3], [0.2, 3, 1]])
+    with pytest.raises(DataError, match="time column 't' has missing or non-numeric values"):
+        Dataset.from_csv(path, ["u"], ["y"])
+
+
 def test_nan_constant_and_non_numeric_values(tmp_path):
     rows = [[0.0, 1, 2, "abc"], [0.1, 1, float("nan"), 1], [0.2, 1, 3, 2]]
     path = _write(tmp_path, "v.csv", ["t", "u", "y", "z"], rows)

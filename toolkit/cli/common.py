@@ -243,8 +243,14 @@ def identifier_arguments(
     its options are invalid.
     """
     inputs, outputs = split_names(args.inputs), split_names(args.outputs)
-    if not outputs:
-        problems.append("--outputs names no column.")
+    for flag, text, names in (
+        ("--inputs", args.inputs, inputs),
+        ("--outputs", args.outputs, outputs),
+    ):
+        if not names:
+            problems.append(f"{flag} names no column.")
+        elif len(names) < len((text or "").split(",")):
+            problems.append(f"{flag} {text!r} has an empty name (two commas, or one at an end).")
     options = parse_key_values(args.option, "--option", problems)
     registry = identifiers()
     factory = None

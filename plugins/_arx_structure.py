@@ -162,7 +162,8 @@ def cv_folds(data: Dataset, window: int) -> list[tuple[Dataset, list[Experiment]
     ]
     if not out:
         raise OptionError(
-            "arx: the experiments are too short for the cross-validation of orders; give na and nb."
+            "arx: the experiments are too short for the cross-validation that chooses the "
+            "structure; give every structure option that is 'auto' (na, nb, nk and offset)."
         )
     return out
 

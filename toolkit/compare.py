@@ -53,8 +53,9 @@ def score(
 
 
 def rmse(y: np.ndarray, y_hat: np.ndarray) -> np.ndarray:
-    """Root-mean-square error per output, in the outputs' unit."""
-    return np.sqrt(np.mean((np.asarray(y) - np.asarray(y_hat)) ** 2, axis=0))
+    """Root-mean-square error per output, in the outputs' unit (inf past a diverged run)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        return np.sqrt(np.mean((np.asarray(y) - np.asarray(y_hat)) ** 2, axis=0))
 
 
 def _refuse_records_read_whole(model: Model, data: Dataset, initial: str) -> None:

@@ -204,3 +204,43 @@ def test_a_baseline_that_does_not_fit_the_validation_data_names_no_cause(tmp_pat
     assert d["baseline"]["fit"] < 0
     assert d["cause"] == "none" and d["baseline"]["unfit"]
     assert "unfit for diagnosis" in r.stdout
+
+
+def _prbs_plant(n, seed, pole):
+    rng = np.random.default_rng(seed)
+    u = np.repeat(rng.choice([-1.0, 1.0], size=n // 10 + 1), 10)[:n]
+    y = np.zeros(n)
+    for k in range(1, n):
+        y[k] = pole * y[k - 1] + 0.1 * u[k - 1]
+    return {"t": 0.01 * np.arange(n), "force": u, "pos": y + 0.01 * y.std() * rng.normal(size=n)}
+
+
+def test_a_baseline_that_diverges_on_the_validation_data_is_an_error(tmp_path):
+    """Trained on an unstable plant (pole 1.02), the baseline's simulation of other data grows
+    without bound: it printed 'fit -2583011253065608192.00 %' and gains of 1e18 points (exit 0).
+    """
+    tr = write_csv(tmp_path / "train.csv", _prbs_plant(400, 1, 1.02))
+    va = write_csv(tmp_path / "valid.csv", _prbs_plant(2000, 2, 0.9))
+    out = tmp_path / "d.json"
+    r = run("diagnose", str(tr), str(va), "--inputs", "force", "--outputs", "pos",
+            "--json", str(out))  # fmt: skip
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert "the baseline (arx) diverges on the validation data" in r.stderr
+    assert not out.exists()
+
+
+def test_every_structure_option_given_is_the_baseline_as_given(tmp_path):
+    """With na, nb, nk and offset all given the automatic baseline has nothing to select: it
+    was a KeyError traceback ('selected'); now the structure is the user's, dead time too."""
+    tr = write_csv(tmp_path / "train.csv", _prbs_plant(1500, 1, 0.9))
+    va = write_csv(tmp_path / "valid.csv", _prbs_plant(800, 2, 0.9))
+    out = tmp_path / "d.json"
+    opts = ["--option", "na=2", "--option", "nb=2", "--option", "nk=3", "--option", "offset=false"]
+    r = run("diagnose", str(tr), str(va), "--inputs", "force", "--outputs", "pos",
+            *opts, "--json", str(out))  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    d = json.loads(out.read_text())
+    choice = d["baseline"]["choice"]
+    assert choice["baseline"] == {"na": 2, "nb": [2], "nk": [3], "offset": False}, choice
+    assert choice["dead_time_left_to_diagnosis"] == {}
+    assert "baseline structure as given" in r.stdout

@@ -404,8 +404,19 @@ def test_two_causes_are_named_in_sequence_and_the_final_model_has_both(seed, tmp
     assert out["extended"]["total_gain"] == pytest.approx(final_fit - out["baseline"]["fit"])
     text = render_diagnosis(out)
     assert "sequence of causes" in text and "total gain" in text
+    # the numbers of a line add up: before + gain = as tested; the refined fit apart; the
+    # extended line names every cause with the total gain (it gave the first step's gain
+    # beside the final model's fit)
+    st = out["sequence"][1]
+    assert st["fit_before"] + st["gain"] == pytest.approx(st["tested_fit"], abs=1e-6)
+    assert f"-> {st['tested_fit']:.2f} % (gain {st['gain']:+.2f} points" in text
+    if abs(st["fit"] - st["tested_fit"]) >= 0.005:
+        assert f"refined {st['fit']:.2f} %" in text
+    named = ", ".join(out["extended"]["effects"])
+    assert f"extended ({named}): fit {out['extended']['fit']:.2f} % " in text
+    assert f"({out['extended']['total_gain']:+.2f} points over the baseline)" in text
     html = write_report(d, valid, tmp_path / "r").read_text()
-    assert "Sequence of causes" in html
+    assert "Sequence of causes" in html and "fit as tested [%]" in html
 
 
 def test_two_causes_are_named_with_default_options():

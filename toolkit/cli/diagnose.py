@@ -207,16 +207,18 @@ def _render_step(st: dict[str, Any]) -> list[str]:
         )
         what = "confirmed" if st.get("stop") else "significant"
         lines = [
-            f"  {st['step']}. nothing more {what} (best of {len(st['findings'])} "
-            f"effects tried: {best})"
+            f"  {st['step']}. nothing more {what} from {st['fit_before']:.2f} % (best of "
+            f"{len(st['findings'])} effects tried: {best})"
         ]
         if st.get("stop"):
             notes.append(f"     {st['stop']}")
         return lines + notes
+    tested = st.get("tested_fit", st["fit"])
+    refined = f", refined {st['fit']:.2f} %" if abs(st["fit"] - tested) >= 0.005 else ""
     lines = [
         f"  {st['step']}. {st['cause']} ({st['effect']}{between_text(st.get('params'))}): fit "
-        f"{st['fit_before']:.2f} -> "
-        f"{st['fit']:.2f} % (gain {st['gain']:+.2f} points, p_adj={st['p_adjusted']:.3g})"
+        f"{st['fit_before']:.2f} -> {tested:.2f} % (gain {st['gain']:+.2f} points, "
+        f"p_adj={st['p_adjusted']:.3g}){refined}"
     ]
     if st.get("ambiguous"):
         lines.append(f"     tie: {st['ambiguous']['statement']}")
@@ -292,14 +294,31 @@ def render_diagnosis(summary: dict[str, Any]) -> str:
         lines.append(f"note: unfit for diagnosis: {summary['baseline']['unfit']}")
     ext = summary["extended"]
     if summary["cause"] != "none":
+        effects = ext.get("effects") or [ext["effect"]]
+        named = (
+            f"{ext['effect']}{between_text(ext.get('params'))}"
+            if len(effects) == 1
+            else ", ".join(effects)
+        )
+        total = ext.get("total_gain", ext["gain"])
+        # the fit is the final (refined) model's; the gain the test measured is the first
+        # step's extension as least squares fits it, which may differ
+        tested = (
+            f"; as tested {ext['gain']:+.2f}"
+            if len(effects) == 1 and abs(total - ext["gain"]) >= 0.005
+            else ""
+        )
         lines.append(
-            f"extended ({ext['effect']}{between_text(ext.get('params'))}): fit {ext['fit']:.2f} % "
-            f"(gain {ext['gain']:+.2f} points)"
-            + (f", model: {ext['model']}" if ext.get("model") else "")
+            f"extended ({named}): fit {ext['fit']:.2f} % ({total:+.2f} points over the "
+            f"baseline{tested})" + (f", model: {ext['model']}" if ext.get("model") else "")
         )
     sequence = summary.get("sequence") or []
     if len(sequence) > 1 or (sequence and sequence[0].get("stop")):
-        lines.append("sequence of causes (each step extends the model of the step before):")
+        lines.append(
+            "sequence of causes (each step extends the structure of the step before, refitted "
+            "by least squares as its candidates are; the gain is the extension's as tested, "
+            "'refined' its fit refined by simulation error):"
+        )
         for st in sequence:
             lines.extend(_render_step(st))
         lines.append(

@@ -68,7 +68,7 @@ from ..output_error import refine as refine_by_simulation
 from ..parallel import map_tasks
 from ..predict import predict, predicts_ahead
 from ..schema import ARX, Block, Model, StateSpace
-from ..simulate import aligned, initial_span, read_whole
+from ..simulate import aligned, divergence, initial_span, read_whole
 from .effect import (
     Context,
     DirectTest,
@@ -266,6 +266,7 @@ def diagnose(
     findings = adjust(trials, settings)
     cross = cross_gains(trials, registry, train, valid, settings, ctx, ref)
     diagnosis = conclude(findings, trials, base, ref, train, settings, skipped, valid, cross)
+    _refuse_diverged_baseline(diagnosis, base, ref)
     trials = _with_builder(trials, diagnosis, registry, ctx, ref, valid, settings)
     steps = continue_sequence(
         diagnosis, trials, registry, train, valid, settings, bar, base.identifier
@@ -436,6 +437,23 @@ def _refuse_short_validation(base: Baseline, valid: Dataset) -> None:
         )
 
 
+def _refuse_diverged_baseline(diagnosis: Diagnosis, base: Baseline, ref: Reference) -> None:
+    """A baseline whose simulation of the validation data diverged, and that no extension
+    explains, leaves nothing to report: every fit and gain would be measured against numbers
+    past its divergence (a fit of -2.6e18 %, gains of 1e18 points)."""
+    if diagnosis.unfit is None:
+        return
+    at = divergence(ref.sim, ref.y)
+    if at is not None:
+        raise DataError(
+            f"diagnose cannot run: the baseline ({base.method}) diverges on the validation data: "
+            f"its simulated outputs leave 10^6 times the data's range at sample {at} (records "
+            "counted one after the other). It is unstable on these inputs, so no cause can be "
+            "read from its errors: validate on data like the training data, or give the "
+            "baseline another structure (--method, --option)."
+        )
+
+
 def auto_baseline(
     train: Dataset, options: dict[str, Any]
 ) -> tuple[Any, Model, Model, dict[str, Any]]:
@@ -462,31 +480,40 @@ def auto_baseline(
     chooser = arx.create(**{**settings, **given})
     with without_training_fit():
         selected = chooser.identify(train)
-    sel = selected.provenance.details["selected"]
+    sel = selected.provenance.details.get("selected")
+    given_all = sel is None  # every structure option given: the user's structure, dead times too
+    if sel is None:
+        nb, nk = chooser.orders(train.nu)
+        sel = {"na": chooser.n_a, "nb": list(nb), "nk": list(nk), "offset": chooser.offset is True}
     nk = [int(k) for k in sel["nk"]]
     lean = {
         "na": sel["na"],
         "nb": tuple(sel["nb"]),
-        "nk": tuple(min(k, 1) for k in nk),
+        "nk": tuple(k if given_all else min(k, 1) for k in nk),
         "offset": bool(sel["offset"]),
     }
     identifier = arx.create(**{**given, **lean})
     model = identifier.identify(train)
-    dead = {n: k - 1 for n, k in zip(train.inputs, nk) if k > 1}
+    dead = {} if given_all else {n: k - 1 for n, k in zip(train.inputs, nk) if k > 1}
     record = {
         "selected": {**sel, "nk": nk},
         "baseline": {k: list(v) if isinstance(v, tuple) else v for k, v in lean.items()},
         "dead_time_left_to_diagnosis": dead,
         "candidates": selected.provenance.details.get("candidates", []),
-        "statement": _choice_statement(lean, dead),
+        "statement": _choice_statement(lean, dead, given_all),
     }
     return identifier, model, selected, record
 
 
-def _choice_statement(lean: dict[str, Any], dead: dict[str, int]) -> str:
+def _choice_statement(lean: dict[str, Any], dead: dict[str, int], given: bool = False) -> str:
+    structure = (
+        f"ARX na={lean['na']}, nb={list(lean['nb'])}, nk={list(lean['nk'])}, "
+        f"offset={lean['offset']}"
+    )
+    if given:
+        return f"baseline structure as given: {structure} (every structure option set)"
     text = (
-        f"baseline structure chosen on the training data: ARX na={lean['na']}, "
-        f"nb={list(lean['nb'])}, nk={list(lean['nk'])}, offset={lean['offset']} (blocked "
+        f"baseline structure chosen on the training data: {structure} (blocked "
         "cross-validation of the simulation error)"
     )
     if dead:

@@ -65,7 +65,7 @@ def write_report(
             f"Named cause: {best.cause}{between_text(best.params)} ({best.description}). "
             "Validation fit "
             f"{d['baseline']['fit']:.2f} % -> {d['extended']['fit']:.2f} % "
-            f"(gain {best.gain:+.2f} points, adjusted p = {best.p_adjusted:.2g})."
+            f"(gain as tested {best.gain:+.2f} points, adjusted p = {best.p_adjusted:.2g})."
         )
         if diagnosis.margin is not None:
             rep.text(f"Margin to the runner-up: {diagnosis.margin:.2f} points.")
@@ -79,13 +79,24 @@ def write_report(
     if len(d["sequence"]) > 1:
         rep.heading("Sequence of causes")
         rep.text(
-            "After a cause is named, its extended model is the baseline of the next step, which "
-            "tries the effects of the other causes; the sequence stops at the first step where "
+            "After a cause is named, its extended structure, refitted by least squares as the "
+            "candidates are, is the baseline of the next step, which tries the effects of the "
+            "other causes (a gain is the extension's as tested; the refined fit is its model "
+            "refined by simulation error); the sequence stops at the first step where "
             "nothing more is significant, or where the cause named is not confirmed once both "
             "models are refined."
         )
         rep.table(
-            ["step", "cause", "fit before [%]", "fit after [%]", "gain [pts]", "adjusted p", "tie"],
+            [
+                "step",
+                "cause",
+                "fit before [%]",
+                "fit as tested [%]",
+                "gain [pts]",
+                "adjusted p",
+                "fit refined [%]",
+                "tie",
+            ],
             [
                 [
                     st["step"],
@@ -93,9 +104,10 @@ def write_report(
                     if st["cause"] != "none"
                     else ("not confirmed" if st.get("stop") else "nothing more significant"),
                     st["fit_before"],
-                    st["fit"],
+                    st.get("tested_fit", st["fit"]),
                     st["gain"],
                     st["p_adjusted"] if st["p_adjusted"] is not None else "",
+                    st["fit"],
                     st["ambiguous"]["statement"] if st.get("ambiguous") else "",
                 ]
                 for st in d["sequence"]

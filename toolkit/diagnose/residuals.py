@@ -170,8 +170,9 @@ def concentration(
             inside, outside = e[mask], e[~mask]
             if inside.size < 5 or outside.size < 5:
                 continue
-            r_out = np.sqrt(np.mean(outside**2))
-            ratio = float(np.sqrt(np.mean(inside**2)) / r_out) if r_out > 0 else float("inf")
+            with np.errstate(over="ignore", invalid="ignore"):  # a diverged run: inf or nan
+                r_out = np.sqrt(np.mean(outside**2))
+                ratio = float(np.sqrt(np.mean(inside**2)) / r_out) if r_out > 0 else float("inf")
             out.append(Concentration(cond, name, ratio, float(mask.mean())))
     return out
 

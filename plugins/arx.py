@@ -78,8 +78,10 @@ class ARX:
     equal_orders : bool
         The automatic choice tries ``na = nb`` only (``max_order`` candidates instead of
         ``(max_order + 1) · max_order``): what ``diagnose`` uses to choose its baseline.
-    max_delay : int
-        Largest delay the automatic choice tries.
+    max_delay : int or "auto"
+        Largest delay the automatic choice tries; ``"auto"`` (default): as far as the data
+        support, a twentieth of the shortest experiment, at least 10 and at most 160 samples
+        (:func:`tendonkit.plugins._arx_structure.delay_range`).
     offset : bool or "auto"
         Also estimate a constant offset per output; ``"auto"`` chooses with and without by the
         same cross-validation as the orders.
@@ -116,7 +118,7 @@ class ARX:
     nk: int | tuple[int, ...] | Literal["auto"] = 1
     max_order: int = 10
     equal_orders: bool = False
-    max_delay: int = 10
+    max_delay: int | Literal["auto"] = "auto"
     offset: bool | Literal["auto"] = False
     ridge: float = 0.0
     bilinear: bool = False
@@ -140,6 +142,8 @@ class ARX:
                 )
         for key in ("max_order", "max_delay"):
             val = getattr(self, key)
+            if key == "max_delay" and val == "auto":
+                continue
             if not is_int(val) or val < (1 if key == "max_order" else 0):
                 p.append(f"{key} must be an integer >= {int(key == 'max_order')}, found {val!r}.")
         if not isinstance(self.ridge, int | float) or not np.isfinite(self.ridge) or self.ridge < 0:

@@ -92,6 +92,12 @@ FloatArray = NDArray[np.float64]
 
 #: Largest pole modulus of a stable mode.
 STABLE_RADIUS = _modal.STABLE_RADIUS
+#: Largest delay ``delayest`` tries for ``pem``.  pem keeps the delays it finds (no scoring
+#: with and without them, as ARX's automatic structure does), and on a lightly damped plant
+#: with several outputs delayest's minimum can fall anywhere (25-71 samples on a three-mass
+#: chain with no dead time; docs/identification.md): the ARX's ``max_delay="auto"`` (up to
+#: 160) would hand such a delay to every model.
+MAX_DELAY = 10
 #: A smaller candidate within this relative margin of the best held-out error is preferred
 #: (a tie: the candidates are refined to SELECTION_TOL only).
 PARSIMONY = 0.001
@@ -125,7 +131,7 @@ class PEM:
     feedthrough : bool or None
         Estimate ``D``; ``False``: ``D = 0``; ``None`` (default): estimate it when some input
         acts without delay, as MATLAB's ``delayest`` finds it (ARX(2, 2) models with delays
-        0 … 10 of every input; :func:`tendonkit.plugins._arx_structure.estimate_delays`).
+        0 … :data:`MAX_DELAY` of every input; :func:`tendonkit.plugins._arx_structure.estimate_delays`).
     delay : bool or None
         ``None`` (default) or ``True``: every input's delay is estimated (``delayest``, as
         for ``feedthrough``) and a delay beyond one sample becomes an input ``delay`` block
@@ -219,7 +225,7 @@ class PEM:
             if self.feedthrough is not None and self.delay is False:
                 return self._identify(dataset)
             # the delay of every input, as MATLAB's delayest finds it
-            delays, record = estimate_delays(ArxOptions(), dataset)
+            delays, record = estimate_delays(ArxOptions(max_delay=MAX_DELAY), dataset)
             feedthrough = (0 in delays) if self.feedthrough is None else self.feedthrough
             # a delay beyond the one sample a strictly proper model has becomes a delay block
             extra = [max(d - 1, 0) if self.delay is not False else 0 for d in delays]

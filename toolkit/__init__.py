@@ -7,6 +7,8 @@ are checked in co-simulation against a physics plant FMU.
 
 from __future__ import annotations
 
+import warnings
+
 from . import _compat
 from .dataset import Dataset, Experiment, validation_problems
 from .errors import (
@@ -18,9 +20,11 @@ from .errors import (
     SchemaError,
     SimulationError,
     TendonkitError,
+    TendonkitWarning,
     raise_if,
 )
 from .hookspecs import hookimpl
+from .identification import poor_fit_warning
 from .manager import effects, identifiers
 from .metrics import fit, fit_table
 from .mpc import (
@@ -70,6 +74,7 @@ __all__ = [
     "StateSpace",
     "StepResult",
     "TendonkitError",
+    "TendonkitWarning",
     "Term",
     "Weights",
     "__version__",
@@ -113,4 +118,8 @@ def identify(dataset: Dataset, method: str = "arx", **options: object) -> Model:
     raise_if(
         validation_problems(dataset), DataError, f"identify ({method}) cannot run on these data:"
     )
-    return entry.create(**options).identify(dataset)
+    model = entry.create(**options).identify(dataset)
+    poor = poor_fit_warning(model)
+    if poor:
+        warnings.warn(poor[0].upper() + poor[1:], TendonkitWarning, stacklevel=2)
+    return model

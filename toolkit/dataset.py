@@ -183,11 +183,11 @@ class Dataset:
             dt=float(dts[0]),
             units=merged,
         )
-        ds.validate(
-            source=", ".join(str(p) for p in paths),
-            min_samples=min_samples,
-            require_outputs=require_outputs,
+        problems = validation_problems(
+            ds, min_samples, require_outputs, files=[str(p) for p in paths]
         )
+        if problems:
+            raise DataError(f"The data from {', '.join(map(str, paths))} cannot be used:", problems)
         return ds
 
     # -- checks ------------------------------------------------------------------------
@@ -353,9 +353,16 @@ def _slice(e: Experiment, s: slice, name: str) -> Experiment:
 
 
 def validation_problems(
-    ds: Dataset, min_samples: int = 2, require_outputs: bool = True
+    ds: Dataset,
+    min_samples: int = 2,
+    require_outputs: bool = True,
+    files: Sequence[str] | None = None,
 ) -> list[str]:
-    """Every problem that makes ``ds`` unusable, as a list of sentences."""
+    """Every problem that makes ``ds`` unusable, as a list of sentences.
+
+    ``files``: the CSV file of each experiment, which then names its problems, rows
+    numbered as in the file (the header is row 1), as the reader's own problems are.
+    """
     p: list[str] = []
     names = [*ds.inputs, *ds.outputs]
     dup = sorted({n for n in names if names.count(n) > 1})
@@ -365,8 +372,12 @@ def validation_problems(
         p.append("at least one output is needed.")
     if not ds.experiments:
         p.append("the dataset has no experiments.")
-    for e in ds.experiments:
-        label = f"experiment {e.name!r}: " if len(ds.experiments) > 1 else ""
+    for i, e in enumerate(ds.experiments):
+        if files is not None:
+            label = f"{files[i]}: "
+        else:
+            label = f"experiment {e.name!r}: " if len(ds.experiments) > 1 else ""
+        first_row = 2 if files is not None else 1  # the row of the first sample
         if e.u.shape != (e.n_samples, ds.nu) or e.y.shape != (e.n_samples, ds.ny):
             p.append(f"{label}arrays have shapes u{e.u.shape}, y{e.y.shape}, t{e.t.shape}.")
             continue
@@ -380,7 +391,7 @@ def validation_problems(
                     first = int(np.argmax(bad))
                     p.append(
                         f"{label}{kind} {n!r} has {int(bad.sum())} NaN/inf values (first at row "
-                        f"{first + 1}, t = {e.t[first]:g} s)."
+                        f"{first + first_row}, t = {e.t[first]:g} s)."
                     )
                 elif e.n_samples > 1 and np.ptp(col) == 0:
                     p.append(

@@ -49,6 +49,11 @@ class OutputError(TendonkitError, OSError):
     """An output file or folder cannot be written (refused, or the system failed to write it)."""
 
 
+class TendonkitWarning(UserWarning):
+    """A result that may be wrong although nothing failed (a model that explains its own
+    training data no better than their mean)."""
+
+
 def raise_if(problems: list[str], cls: type[TendonkitError], headline: str) -> None:
     """Raise ``cls`` listing ``problems`` when there are any.
 

@@ -140,6 +140,22 @@ def training_fit(model: Model, dataset: Dataset) -> dict[str, float]:
     return {name: float(v) if np.isfinite(v) else -1e300 for name, v in zip(model.output_names, f)}
 
 
+def poor_fit_warning(model: Model) -> str | None:
+    """Why ``model`` is useless on its own training data, or None: an output whose free run
+    fits it no better than its mean (fit <= 0 %) says the structure does not suit the data
+    (a dead time longer than the model's delays, an integrator, orders too low)."""
+    poor = {n: v for n, v in model.provenance.training_fit.items() if not v > 0.0}
+    if not poor:
+        return None
+    fits = ", ".join(f"{n} {v:.1f} %" if v > -1e299 else f"{n} diverged" for n, v in poor.items())
+    return (
+        f"the {model.provenance.identifier} model's free run explains its own training data no "
+        f"better than their mean ({fits}): its structure does not suit these data (a dead "
+        "time longer than its delays, an integrator, orders too low); choose the structure on "
+        "the data (arx: na, nb and nk 'auto'; n4sid or pem: order 'auto')."
+    )
+
+
 def is_int(v: object) -> bool:
     """Whether ``v`` is an integer option value (Python or numpy; a bool is not)."""
     return isinstance(v, int | np.integer) and not isinstance(v, bool | np.bool_)

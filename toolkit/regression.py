@@ -34,7 +34,10 @@ def scaled_lstsq(Phi: FloatArray, Y: FloatArray, ridge: float = 0.0) -> FloatArr
     if not (np.all(np.isfinite(Phi)) and np.all(np.isfinite(Y))):
         # LAPACK would print to stdout and return garbage; a caller trying candidates skips it
         raise ValueError("the regressors or targets are not finite (a diverged signal).")
-    scale = np.linalg.norm(Phi, axis=0)
+    with np.errstate(over="ignore"):
+        # a column beyond ~1e154 (a high power of a large signal) has an infinite norm: it is
+        # scaled to zero and its coefficient is 0, as for an exactly collinear column
+        scale = np.linalg.norm(Phi, axis=0)
     scale[scale == 0] = 1.0
     P = Phi / scale
     k = P.shape[1]

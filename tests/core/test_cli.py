@@ -355,3 +355,23 @@ def test_collect_checks_radii_in_the_unit_they_are_given(tmp_path, capsys):
     assert "--radii: 100 cm is outside 0.01 to 15 cm" in err and "1.0" not in err
     assert "names no radius" not in err  # the refused radius says why
     assert not out.exists()
+
+
+def test_a_model_no_better_than_the_mean_warns(tmp_path):
+    """A dead time of 30 samples and the default ARX(8, 8, 1): the model was written with a
+    training fit of -0.6 % and nothing said."""
+    from tendonkit.dataset import write_csv
+
+    rng = np.random.default_rng(1)
+    n = 2000
+    u = np.repeat(rng.choice([-1.0, 1.0], size=n // 10 + 1), 10)[:n]
+    y = np.zeros(n)
+    for k in range(30, n):
+        y[k] = 1.5 * y[k - 1] - 0.7 * y[k - 2] + 0.1 * u[k - 30]
+    data = write_csv(tmp_path / "d.csv", {"t": 0.01 * np.arange(n), "u": u, "y": y})
+    out, summary = tmp_path / "m.json", tmp_path / "s.json"
+    r = run("identify", str(data), "--inputs", "u", "--outputs", "y", "-o", str(out),
+            "--json", str(summary))  # fmt: skip
+    assert r.returncode == 0 and out.exists()
+    assert "warning: the arx model's free run explains its own training data no better" in r.stderr
+    assert "nk 'auto'" in json.loads(summary.read_text())["warnings"][0]

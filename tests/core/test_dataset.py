@@ -76,9 +76,12 @@ def test_nan_constant_and_non_numeric_values(tmp_path):
     )
     with pytest.raises(DataError) as info:
         Dataset.from_csv(path, ["u"], ["y"])
-    text = str(info.value)
-    assert "output 'y' has 1 NaN/inf values (first at row 2" in text
-    assert "input 'u' is constant" in text
+    # each problem names its file, and rows are counted as in the file (the header is row 1)
+    assert (
+        f"{path}: output 'y' has 1 NaN/inf values (first at row 3, t = 0.1 s)."
+        in info.value.problems
+    )
+    assert f"{path}: input 'u' is constant (1); it carries no information." in info.value.problems
 
 
 def test_same_column_as_input_and_output_is_refused(csv_file):

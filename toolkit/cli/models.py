@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 from pathlib import Path
 from typing import Any
 
 from ..compare import compare, render_compare
 from ..dataset import Dataset, write_csv
 from ..errors import DataError, SimulationError
+from ..identification import poor_fit_warning
 from ..predict import predict
 from ..preprocess import lowpass, paper_cutoff_hz
 from ..robot.reconstruct import has_base_joints, joint_extras
@@ -117,6 +119,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
     if cutoff is not None:
         model = noted(model, f"outputs low-pass filtered at {cutoff:.6g} Hz (zero-phase)")
     atomic_write(args.output, model.save)
+    poor = poor_fit_warning(model)
     summary = {
         "model": str(args.output),
         "method": args.method,
@@ -124,11 +127,14 @@ def cmd_identify(args: argparse.Namespace) -> int:
         "training_fit": model.provenance.training_fit,
         "samples": data.n_samples,
         "lowpass_hz": cutoff,
+        "warnings": [poor] if poor else [],
     }
     if args.json:
         write_json(args.json, summary)
     fits = ", ".join(f"{k} {v:.2f} %" for k, v in model.provenance.training_fit.items())
     print(f"{args.method}: {model.kind} model written to {args.output} (training fit: {fits})")
+    if poor:
+        print(f"tendonkit: warning: {poor}", file=sys.stderr)
     return 0
 
 

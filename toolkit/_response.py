@@ -27,17 +27,17 @@ def split_delay(samples: float) -> tuple[int, float]:
     return n, (0.0 if a < 1e-12 else a)
 
 
-def fractional_delay(s: FloatArray, samples: float) -> FloatArray:
+def fractional_delay(s: FloatArray, samples: float, before: float | None = None) -> FloatArray:
     """``v[k] = (1-α) s[k-n] + α s[k-n-1]`` (``n``, ``α`` from :func:`split_delay`).
 
-    The signal before the first sample is ``s[0]``.  A fractional delay of a zero-order-held
-    signal, averaged over the frame, is exactly this two-tap filter.
+    The signal before the first sample is ``before`` (default ``s[0]``).  A fractional delay
+    of a zero-order-held signal, averaged over the frame, is exactly this two-tap filter.
     """
     n, a = split_delay(samples)
     if n == 0 and a == 0:
         return s.copy()
     N = len(s)
-    pad = np.concatenate([np.full(n + 1, s[0]), s])
+    pad = np.concatenate([np.full(n + 1, s[0] if before is None else before), s])
     out = pad[1 : N + 1].copy()
     if a:
         out = (1.0 - a) * out + a * pad[:N]

@@ -31,7 +31,7 @@ from ._response import (
     split_delay,
     ss_response,
 )
-from ._simulate_arx import _sim_arx, arx_max_lag
+from ._simulate_arx import _arx_parts, _sim_arx, arx_max_lag
 from .dataset import Dataset
 from .errors import DataError, SimulationError
 from .realize import fold_offsets
@@ -41,15 +41,18 @@ from .terms import CompiledTerms, Term, series_getter
 FloatArray = NDArray[np.float64]
 
 
-def apply_block(block: Block, s: FloatArray, compiled: bool = True) -> FloatArray:
+def apply_block(
+    block: Block, s: FloatArray, compiled: bool = True, before: float | None = None
+) -> FloatArray:
     """Apply one block to a signal sequence ``s`` (n,) and return the new sequence.
 
     ``compiled=False`` runs the reference (pure numpy/Python) form of the play and rate-limit
-    loops instead of the compiled kernel.
+    loops instead of the compiled kernel.  ``before``: a delay's signal before the first sample
+    (default ``s[0]``).
     """
     p = block.params
     if block.kind == "delay":
-        return fractional_delay(s, float(p["samples"]))
+        return fractional_delay(s, float(p["samples"]), before)
     if block.kind == "dead_zone":
         c, th = p["center"], p["threshold"]
         z = s - c
@@ -151,15 +154,59 @@ def transform_inputs(data: Dataset, blocks: Sequence[Block]) -> Dataset:
 
 
 def _apply_blocks(
-    blocks: tuple[Block, ...], names: list[str], arr: FloatArray, compiled: bool = True
+    blocks: tuple[Block, ...],
+    names: list[str],
+    arr: FloatArray,
+    compiled: bool = True,
+    before: dict[int, float] | None = None,
 ) -> FloatArray:
+    """``before``: a signal's value before the record, per column (what its delays hold at
+    the start; the blocks ahead of a delay applied to it)."""
     if not blocks:
         return arr
     out = arr.copy()
+    held = dict(before or {})
     for b in blocks:
         j = names.index(b.signal)
-        out[:, j] = apply_block(b, out[:, j], compiled)
+        pad = held.get(j)
+        out[:, j] = apply_block(b, out[:, j], compiled, pad)
+        if pad is not None and b.kind != "delay":
+            held[j] = float(apply_block(b, np.full(2, pad), compiled)[-1])
     return out
+
+
+def _input_history(model: Model, rep: ARX, u: FloatArray, y: FloatArray) -> dict[int, float]:
+    """Inputs before the record, for an ARX model whose inputs pass delay blocks.
+
+    The first samples of a delayed input come from before the record, which the data do not
+    hold.  Held at the first sample (``u[0]``), a plant started at rest with its input
+    switched on at once is simulated with a step that never happened: on a dead time of 30
+    samples the free run fitted 85.6 % where the same model written as an ARX with ``nk =
+    30`` (which copies its first outputs) fitted 98.8 %, and diagnose named a false friction
+    from that start.  The ARX's own history is the measured start held before the record
+    (``y[0]``); the delayed inputs are chosen to agree with it — the steady state of the
+    linear part, ``A(1) y[0] = offset + G(1) u``, solved for the delayed inputs nearest
+    ``u[0]`` (least squares), each within the range of its record.
+    """
+    nu = u.shape[1]
+    delayed = sorted(
+        {model.input_names.index(b.signal) for b in model.input_blocks if b.kind == "delay"}
+    )
+    if not delayed or u.shape[0] == 0:
+        return {}
+    Acat, G, off = _arx_parts(model, rep)
+    ny = y.shape[1]
+    A1 = np.eye(ny) + (Acat.reshape(ny, -1, ny).sum(axis=1) if Acat.size else 0.0)
+    G1 = np.sum(G, axis=0).reshape(ny, nu)
+    u0 = u[0].astype(float)
+    r = A1 @ y[0] - off - G1 @ u0
+    GJ = G1[:, delayed]
+    if not (np.all(np.isfinite(r)) and np.all(np.isfinite(GJ))) or not np.any(GJ):
+        return {}
+    delta = np.linalg.lstsq(GJ, r, rcond=1e-8)[0]
+    lo, hi = u[:, delayed].min(axis=0), u[:, delayed].max(axis=0)
+    pre = np.clip(u0[delayed] + delta, lo, hi)
+    return {j: float(v) for j, v in zip(delayed, pre)}
 
 
 def block_inputs(blocks: Sequence[Block], names: Sequence[str], s: FloatArray) -> list[FloatArray]:
@@ -353,10 +400,15 @@ def simulate(
     ):
         raise DataError(f"init_window must be a positive number of samples, found {init_window!r}.")
     fast = engine == "compiled"
-    ub = _apply_blocks(model.input_blocks, model.input_names, u, fast)
     if y is not None and any(b.kind == "polynomial" for b in model.output_blocks):
         y = inner_outputs(model, y, initial_span(model, init_window))
     rep = model.representation
+    before = None
+    if isinstance(rep, ARX) and isinstance(initial, str) and initial == "estimate":
+        assert y is not None
+        with np.errstate(all="ignore"):
+            before = _input_history(model, rep, u, y)
+    ub = _apply_blocks(model.input_blocks, model.input_names, u, fast, before)
     # A diverging simulation overflows on its way to NaN; that is reported through the NaN
     # outputs (and a fit of -inf), not through floating-point warnings.
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):

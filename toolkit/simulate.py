@@ -6,7 +6,9 @@ Initial-state policy (``initial=``):
 - ``"model"``: the model's stored ``x0`` (zero when it has none);
 - ``"estimate"`` (default when measured outputs are given): state space: least-squares fit of
   ``x0`` to the first ``max(10·n, 50)`` samples; ARX and sparse maps: the first samples of the
-  measured outputs seed the recursion (the simulated output equals the measurement there);
+  measured outputs seed the recursion (the simulated output equals the measurement there),
+  and an ARX's delayed inputs before the record are those of its steady state at the measured
+  start (:func:`_input_history`; otherwise every input before the record is its first sample);
 - an array: the initial state itself (``state_space``, ``sparse_map``).
 
 Input blocks are applied to the input sequence before the dynamics, output blocks to the

@@ -32,6 +32,7 @@ from ..simulate import (
     apply_block,
     block_inputs,
     curve_inverse,
+    divergence,
     inner_outputs,
     simulate,
     simulate_dataset,
@@ -361,7 +362,7 @@ def with_output_curves(inner: Model, data: Dataset, degree: int = 3) -> Model:
         raise ValueError(f"a polynomial block is at most cubic, found degree {degree}")
     data = aligned(inner, data)
     x = np.vstack([simulate(inner, e.u, y=e.y, initial="estimate") for e in data.experiments])
-    if not np.all(np.isfinite(x)):
+    if divergence(x, data.y) is not None:  # non-finite, or finite but far beyond the data
         raise ValueError("the inner model diverges on the data")
     blocks = []
     for j, name in enumerate(inner.output_names):

@@ -48,13 +48,15 @@ from .regression import r_factor
 from .schema import ARX, Block, Model, SparseMap, StateSpace
 from .simulate import (
     _apply_blocks,
+    _simulate_checked,
     aligned,
     apply_block,
     block_inputs,
+    compiled_engine,
     curve_slope,
     initial_span,
     inner_outputs,
-    simulate,
+    input_history,
 )
 from .terms import CompiledTerms, Term
 
@@ -313,6 +315,10 @@ def refine(
     scale[~(scale > 0)] = 1.0
 
     n_res = sum(e.y.size for e in data.experiments)
+    # an ARX's delayed inputs before the record (simulate's steady state at the measured
+    # start) are held at the start model's: the objective then depends on the parameters
+    # through the simulation alone, as the exact Jacobian says
+    history = [input_history(model, e.u, e.y, initial) for e in data.experiments]
 
     last: dict[str, Any] = {}
 
@@ -329,8 +335,12 @@ def refine(
             except SchemaError:  # e.g. a saturation whose limits crossed: step back
                 m = None
         if m is not None:
+            fast = compiled_engine()
             with np.errstate(all="ignore"):
-                sims = [simulate(m, e.u, y=e.y, initial=initial) for e in data.experiments]
+                sims = [
+                    _simulate_checked(m, e.u, e.y, initial, fast, None, h)
+                    for e, h in zip(data.experiments, history, strict=True)
+                ]
             # a diverged simulation is not finite, which makes the optimiser shorten its step
             r = np.concatenate(
                 [
@@ -350,7 +360,7 @@ def refine(
         return model
     jac: Any = "2-point"
     if analytic and _arx_sensitivity_applies(model, initial):
-        jac = _arx_jacobian(model, data, decode, run, scale)
+        jac = _arx_jacobian(model, data, decode, run, scale, history)
     with np.errstate(all="ignore"):  # trial steps may diverge; the optimiser steps back
         if callable(jac):
             x, fun, nfev = _tall_trust_region(
@@ -560,8 +570,12 @@ def _arx_jacobian(
     decode: Callable[[FloatArray], Model],
     run: Callable[[FloatArray], tuple[list[FloatArray] | None, FloatArray]],
     scale: FloatArray,
+    history: list[dict[int, float]] | None = None,
 ) -> Callable[[FloatArray], FloatArray]:
     """The Jacobian of :func:`refine`'s residuals for an ARX model (see ``analytic``).
+
+    ``history``: per experiment, the delayed inputs before the record ``run`` holds
+    (:func:`tendonkit.simulate.input_history` of ``model``, the default).
 
     The coefficients come first in the parameter vector (``_codec``: ``A``, the non-zero
     ``B``, the offset, the term coefficients), the blocks' parameters after them.  ``run``
@@ -569,6 +583,9 @@ def _arx_jacobian(
     """
     rep0 = model.representation
     assert isinstance(rep0, ARX)
+    if history is None:
+        history = [input_history(model, e.u, e.y) for e in data.experiments]
+    held = history
     outputs, inputs = list(model.output_names), list(model.input_names)
     ny, nu, nt = len(outputs), len(inputs), len(rep0.terms)
     # The structure is fixed (the terms are memoryless, so only coefficients change): which
@@ -653,15 +670,15 @@ def _arx_jacobian(
         chain = [(outputs.index(b.signal), b) for b in m.output_blocks]
         inner = m.replace(output_blocks=()) if chain else m
         with np.errstate(all="ignore"):
-            for e, ys in zip(data.experiments, sims, strict=True):
+            for e, ys, hist in zip(data.experiments, sims, held, strict=True):
                 N = e.u.shape[0]
                 start = min(L, N)
-                ub = _apply_blocks(m.input_blocks, m.input_names, e.u, True)
+                ub = _apply_blocks(m.input_blocks, m.input_names, e.u, True, hist)
                 Up = np.vstack([np.repeat(ub[:1], L, axis=0), ub])
                 y_meas = e.y
                 if chain:  # the inner signal, started from the outputs taken back
                     y_meas = inner_outputs(m, e.y, initial_span(m))
-                    ys = simulate(inner, e.u, y=y_meas, initial="estimate")
+                    ys = _simulate_checked(inner, e.u, y_meas, "estimate", True, None, hist)
                 Yp = np.vstack([np.repeat(y_meas[:1], L, axis=0), ys])
                 Phi, J = regressors(rep, Up, Yp, N)
                 Phi[:start] = 0.0  # the measured history does not depend on the parameters

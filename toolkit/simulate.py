@@ -401,16 +401,51 @@ def simulate(
         isinstance(init_window, bool) or not isinstance(init_window, int) or init_window < 1
     ):
         raise DataError(f"init_window must be a positive number of samples, found {init_window!r}.")
-    fast = engine == "compiled"
+    return _simulate_checked(model, u, y, initial, engine == "compiled", init_window)
+
+
+def compiled_engine() -> bool:
+    """Whether :data:`ENGINE` (read when called: benchmarks set it) is the compiled one."""
+    return ENGINE == "compiled"
+
+
+def input_history(
+    model: Model, u: FloatArray, y: FloatArray | None, initial: Initial | None = "estimate"
+) -> dict[int, float]:
+    """The delayed inputs before the record that :func:`simulate` starts ``model`` from
+    (:func:`_input_history`; empty unless an ARX with ``initial="estimate"``), by input
+    index.  :func:`tendonkit.output_error.refine` holds them at its start model's."""
+    rep = model.representation
+    if not (isinstance(rep, ARX) and isinstance(initial, str) and initial == "estimate"):
+        return {}
+    if y is None:
+        return {}
+    if any(b.kind == "polynomial" for b in model.output_blocks):
+        y = inner_outputs(model, y, initial_span(model))
+    with np.errstate(all="ignore"):
+        return _input_history(model, rep, np.asarray(u, dtype=float), np.asarray(y, dtype=float))
+
+
+def _simulate_checked(
+    model: Model,
+    u: FloatArray,
+    y: FloatArray | None,
+    initial: Initial,
+    fast: bool,
+    init_window: int | None,
+    before: Mapping[int, float] | None = None,
+) -> FloatArray:
+    """:func:`simulate` after its checks; ``before``: the delayed inputs before the record
+    (default: :func:`input_history`)."""
     if y is not None and any(b.kind == "polynomial" for b in model.output_blocks):
         y = inner_outputs(model, y, initial_span(model, init_window))
     rep = model.representation
-    before = None
-    if isinstance(rep, ARX) and isinstance(initial, str) and initial == "estimate":
-        assert y is not None
-        with np.errstate(all="ignore"):
-            before = _input_history(model, rep, u, y)
-    ub = _apply_blocks(model.input_blocks, model.input_names, u, fast, before)
+    if before is None and isinstance(rep, ARX) and isinstance(initial, str):
+        if initial == "estimate":
+            assert y is not None
+            with np.errstate(all="ignore"):
+                before = _input_history(model, rep, u, y)
+    ub = _apply_blocks(model.input_blocks, model.input_names, u, fast, dict(before or {}))
     # A diverging simulation overflows on its way to NaN; that is reported through the NaN
     # outputs (and a fit of -inf), not through floating-point warnings.
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):

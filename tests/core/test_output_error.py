@@ -74,13 +74,15 @@ def test_a_model_at_its_optimum_is_returned_unchanged() -> None:
 def test_the_arx_sensitivity_jacobian_equals_finite_differences() -> None:
     """The exact Jacobian of an ARX's simulation error (forward sensitivities through the
     linearised recursion, ``refine(analytic=True)``) against central differences, on random
-    ARX models with terms of past outputs and inputs, bilinear gains and input blocks."""
+    ARX models with terms of past outputs and inputs, bilinear gains and input blocks — of
+    refine's residuals, which hold a delay's inputs before the record at the start model's
+    (``input_history``)."""
     from random_models import random_model
     from scipy.optimize._numdiff import approx_derivative
 
     from tendonkit.dataset import Dataset, Experiment
     from tendonkit.output_error import _arx_jacobian, _arx_sensitivity_applies, _codec
-    from tendonkit.simulate import aligned, simulate
+    from tendonkit.simulate import _simulate_checked, aligned, input_history, simulate
 
     checked = 0
     for kind in ("arx_linear", "arx_terms", "arx_bilinear"):
@@ -96,9 +98,11 @@ def test_the_arx_sensitivity_jacobian_equals_finite_differences() -> None:
             theta0, decode = _codec(m, True)
             scale = np.std(data.y, axis=0)
 
-            def run(th, decode=decode, data=data, scale=scale):  # type: ignore[no-untyped-def]
+            held = input_history(m, data.experiments[0].u, data.experiments[0].y)
+
+            def run(th, decode=decode, data=data, scale=scale, held=held):  # type: ignore[no-untyped-def]
                 e = data.experiments[0]
-                sim = simulate(decode(th), e.u, y=e.y, initial="estimate")
+                sim = _simulate_checked(decode(th), e.u, e.y, "estimate", True, None, held)
                 return [sim], ((e.y - sim) / scale).ravel()
 
             def res(th, run=run):  # type: ignore[no-untyped-def]

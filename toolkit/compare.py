@@ -53,7 +53,8 @@ def score(
 
 
 def rmse(y: np.ndarray, y_hat: np.ndarray) -> np.ndarray:
-    """Root-mean-square error per output, in the outputs' unit (inf past a diverged run)."""
+    """Root-mean-square error per output, in the outputs' unit (not finite after a diverged
+    run: NaN, or inf where the squares overflow)."""
     with np.errstate(over="ignore", invalid="ignore"):
         return np.sqrt(np.mean((np.asarray(y) - np.asarray(y_hat)) ** 2, axis=0))
 

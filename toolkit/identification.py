@@ -152,7 +152,7 @@ def poor_fit_warning(model: Model) -> str | None:
         f"the {model.provenance.identifier} model's free run explains its own training data no "
         f"better than their mean ({fits}): its structure does not suit these data (a dead "
         "time longer than its delays, an integrator, orders too low); choose the structure on "
-        "the data (arx: na, nb and nk 'auto'; n4sid or pem: order 'auto')."
+        "the data (arx: na, nb and nk 'auto'; n4sid or pem: order left unset)."
     )
 
 

@@ -21,6 +21,7 @@ from .simulate import (
     _check_u,
     estimate_x0,
     inner_outputs,
+    input_history,
     ss_theta_measured,
 )
 from .terms import CompiledTerms
@@ -63,7 +64,9 @@ def predict(model: Model, u: FloatArray, y: FloatArray, k: int = 1) -> FloatArra
         return _apply_blocks(
             model.output_blocks, model.output_names, predict(inner, u, inner_outputs(model, y), k)
         )
-    ub = _apply_blocks(model.input_blocks, model.input_names, u)
+    # an ARX's delayed inputs before the record: as simulate starts them (input_history)
+    before = input_history(model, u, y)
+    ub = _apply_blocks(model.input_blocks, model.input_names, u, True, before)
     rep = model.representation
     if isinstance(rep, StateSpace) and rep.terms:
         return _predict_ss_terms(model, rep, ub, y, k)

@@ -8,7 +8,8 @@ Initial-state policy (``initial=``):
   ``x0`` to the first ``max(10·n, 50)`` samples; ARX and sparse maps: the first samples of the
   measured outputs seed the recursion (the simulated output equals the measurement there),
   and an ARX's delayed inputs before the record are those of its steady state at the measured
-  start (:func:`_input_history`; otherwise every input before the record is its first sample);
+  start where its equation gives it (:func:`_input_history`; otherwise every input before the
+  record is its first sample);
 - an array: the initial state itself (``state_space``, ``sparse_map``).
 
 Input blocks are applied to the input sequence before the dynamics, output blocks to the
@@ -187,14 +188,19 @@ def _input_history(model: Model, rep: ARX, u: FloatArray, y: FloatArray) -> dict
     30`` (which copies its first outputs) fitted 98.8 %, and diagnose named a false friction
     from that start.  The ARX's own history is the measured start held before the record
     (``y[0]``); the delayed inputs are chosen to agree with it — the steady state of the
-    linear part, ``A(1) y[0] = offset + G(1) u``, solved for the delayed inputs nearest
-    ``u[0]`` (least squares), each within the range of its record.
+    ARX, ``A(1) y[0] = offset + G(1) u + Σ c_t θ_t(y[0])`` (its terms of the outputs held at
+    ``y[0]``), solved for the delayed inputs nearest ``u[0]`` (least squares), each within the
+    range of its record.  Where that equation is not the model's steady state — an input
+    passes another block (a dead zone, a filter), a term reads an input (a Hammerstein curve,
+    a bilinear gain) or has a memory — the inputs stay held at ``u[0]``, as before.
     """
     nu = u.shape[1]
     delayed = sorted(
         {model.input_names.index(b.signal) for b in model.input_blocks if b.kind == "delay"}
     )
-    if not delayed or u.shape[0] == 0:
+    if not delayed or u.shape[0] == 0 or y.shape[0] == 0:
+        return {}
+    if any(b.kind != "delay" for b in model.input_blocks):
         return {}
     Acat, G, off = _arx_parts(model, rep)
     ny = y.shape[1]
@@ -202,6 +208,15 @@ def _input_history(model: Model, rep: ARX, u: FloatArray, y: FloatArray) -> dict
     G1 = np.sum(G, axis=0).reshape(ny, nu)
     u0 = u[0].astype(float)
     r = A1 @ y[0] - off - G1 @ u0
+    if rep.terms and rep.term_coefficients is not None:
+        inputs = set(model.input_names)
+        ct = CompiledTerms(rep.terms)
+        if any(t.signals & inputs for t in rep.terms) or ct.stateful:
+            return {}
+        outputs = list(model.output_names)
+        at_rest = np.array([y[0, outputs.index(name)] for name, _ in ct.keys], dtype=float)
+        theta = ct.evaluate(at_rest.reshape(len(ct.keys), 1))[:, 0]
+        r = r - theta @ rep.term_coefficients
     GJ = G1[:, delayed]
     if not (np.all(np.isfinite(r)) and np.all(np.isfinite(GJ))) or not np.any(GJ):
         return {}

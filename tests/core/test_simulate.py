@@ -419,3 +419,20 @@ def test_a_delay_block_starts_from_inputs_that_agree_with_the_measured_start(sta
                       y=y[:, None])  # fmt: skip
     assert np.max(np.abs(as_nk[:, 0] - y)) < 1e-9
     assert np.max(np.abs(behind[:, 0] - y)) < 1e-9
+    # its predictions start from the same inputs (they erred by 0.15 one step ahead, 0.98
+    # fifty steps ahead, at rest)
+    delayed = arx(1, (Block("delay", "u", {"samples": float(dead)}),))
+    for k in (1, 5, 50):
+        assert np.max(np.abs(predict(delayed, u[:, None], y[:, None], k)[:, 0] - y)) < 1e-9
+    # where the ARX's steady state is not the model's (a dead zone ahead of the delay), the
+    # inputs before the record stay held at the first one: exact for the plant started in the
+    # steady state of its first input (a dead zone leaves ±1 less 0.1)
+    if start == "steady state":
+        zone = Block("dead_zone", "u", {"center": 0.0, "threshold": 0.1})
+        gated = arx(1, (zone, Block("delay", "u", {"samples": float(dead)})))
+        w = 0.9 * v  # what the dead zone passes of ±1
+        z = np.zeros(n)
+        z[:2] = 0.75 * w[0]
+        for k in range(2, n):
+            z[k] = 1.5 * z[k - 1] - 0.7 * z[k - 2] + 0.1 * w[k - 1] + 0.05 * w[k - 2]
+        assert np.max(np.abs(simulate(gated, u[:, None], y=z[:, None])[:, 0] - z)) < 1e-9

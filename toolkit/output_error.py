@@ -375,10 +375,11 @@ def refine(
     if not np.isfinite(cost) or not cost < cost0:
         return model
     refined = decode(x)
-    if any(history):
+    own = [input_history(refined, e.u, e.y, initial) for e in data.experiments]
+    if own != history:
         # the objective held the start model's delayed inputs before the record; the refined
         # model is simulated from its own (input_history): its cost is that simulation's
-        history = [input_history(refined, e.u, e.y, initial) for e in data.experiments]
+        history = own
         last.clear()
         cost = float(np.sum(run(x)[1] ** 2))
         if not np.isfinite(cost) or not cost < cost0:

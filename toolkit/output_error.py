@@ -594,7 +594,6 @@ def _arx_jacobian(
     assert isinstance(rep0, ARX)
     if history is None:
         history = [input_history(model, e.u, e.y) for e in data.experiments]
-    held = history
     outputs, inputs = list(model.output_names), list(model.input_names)
     ny, nu, nt = len(outputs), len(inputs), len(rep0.terms)
     # The structure is fixed (the terms are memoryless, so only coefficients change): which
@@ -679,7 +678,7 @@ def _arx_jacobian(
         chain = [(outputs.index(b.signal), b) for b in m.output_blocks]
         inner = m.replace(output_blocks=()) if chain else m
         with np.errstate(all="ignore"):
-            for e, ys, hist in zip(data.experiments, sims, held, strict=True):
+            for e, ys, hist in zip(data.experiments, sims, history, strict=True):
                 N = e.u.shape[0]
                 start = min(L, N)
                 ub = _apply_blocks(m.input_blocks, m.input_names, e.u, True, hist)

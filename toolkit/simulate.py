@@ -163,18 +163,15 @@ def _apply_blocks(
     compiled: bool = True,
     before: dict[int, float] | None = None,
 ) -> FloatArray:
-    """``before``: a signal's value before the record, per column (what its delays hold at
-    the start; the blocks ahead of a delay applied to it)."""
+    """``before``: a delayed signal's value before the record, per column (default: its
+    first sample; :func:`input_history`)."""
     if not blocks:
         return arr
     out = arr.copy()
-    held = dict(before or {})
+    held = before or {}
     for b in blocks:
         j = names.index(b.signal)
-        pad = held.get(j)
-        out[:, j] = apply_block(b, out[:, j], compiled, pad)
-        if pad is not None and b.kind != "delay":
-            held[j] = float(apply_block(b, np.full(2, pad), compiled)[-1])
+        out[:, j] = apply_block(b, out[:, j], compiled, held.get(j))
     return out
 
 
@@ -195,12 +192,8 @@ def _input_history(model: Model, rep: ARX, u: FloatArray, y: FloatArray) -> dict
     a bilinear gain) or has a memory — the inputs stay held at ``u[0]``, as before.
     """
     nu = u.shape[1]
-    delayed = sorted(
-        {model.input_names.index(b.signal) for b in model.input_blocks if b.kind == "delay"}
-    )
-    if not delayed or u.shape[0] == 0 or y.shape[0] == 0:
-        return {}
-    if any(b.kind != "delay" for b in model.input_blocks):
+    delayed = sorted({model.input_names.index(b.signal) for b in model.input_blocks})
+    if u.shape[0] == 0 or y.shape[0] == 0:
         return {}
     Acat, G, off = _arx_parts(model, rep)
     ny = y.shape[1]
@@ -430,15 +423,31 @@ def input_history(
     """The delayed inputs before the record that :func:`simulate` starts ``model`` from
     (:func:`_input_history`; empty unless an ARX with ``initial="estimate"``), by input
     index.  :func:`tendonkit.output_error.refine` holds them at its start model's."""
-    rep = model.representation
-    if not (isinstance(rep, ARX) and isinstance(initial, str) and initial == "estimate"):
-        return {}
-    if y is None:
+    if y is None or not _starts_delays(model, initial):
         return {}
     if any(b.kind == "polynomial" for b in model.output_blocks):
         y = inner_outputs(model, y, initial_span(model))
+    return _history(model, np.asarray(u, dtype=float), np.asarray(y, dtype=float))
+
+
+def _starts_delays(model: Model, initial: Initial | None) -> bool:
+    """Whether :func:`_input_history` applies: an ARX started from its measured outputs whose
+    input blocks are delays only (nothing else stands between them and its equation)."""
+    blocks = model.input_blocks
+    return (
+        isinstance(model.representation, ARX)
+        and isinstance(initial, str)
+        and initial == "estimate"
+        and bool(blocks)
+        and all(b.kind == "delay" for b in blocks)
+    )
+
+
+def _history(model: Model, u: FloatArray, y: FloatArray) -> dict[int, float]:
+    rep = model.representation
+    assert isinstance(rep, ARX)
     with np.errstate(all="ignore"):
-        return _input_history(model, rep, np.asarray(u, dtype=float), np.asarray(y, dtype=float))
+        return _input_history(model, rep, u, y)
 
 
 def _simulate_checked(
@@ -455,11 +464,8 @@ def _simulate_checked(
     if y is not None and any(b.kind == "polynomial" for b in model.output_blocks):
         y = inner_outputs(model, y, initial_span(model, init_window))
     rep = model.representation
-    if before is None and isinstance(rep, ARX) and isinstance(initial, str):
-        if initial == "estimate":
-            assert y is not None
-            with np.errstate(all="ignore"):
-                before = _input_history(model, rep, u, y)
+    if before is None and y is not None and _starts_delays(model, initial):
+        before = _history(model, u, y)  # y taken back through the curves above
     ub = _apply_blocks(model.input_blocks, model.input_names, u, fast, dict(before or {}))
     # A diverging simulation overflows on its way to NaN; that is reported through the NaN
     # outputs (and a fit of -inf), not through floating-point warnings.

@@ -206,8 +206,9 @@ def _render_step(st: dict[str, Any]) -> list[str]:
             else "none"
         )
         what = "confirmed" if st.get("stop") else "significant"
+        more = " more" if st["step"] > 1 else ""
         lines = [
-            f"  {st['step']}. nothing more {what} from {st['fit_before']:.2f} % (best of "
+            f"  {st['step']}. nothing{more} {what} from {st['fit_before']:.2f} % (best of "
             f"{len(st['findings'])} effects tried: {best})"
         ]
         if st.get("stop"):

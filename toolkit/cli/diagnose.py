@@ -11,7 +11,13 @@ import numpy as np
 
 from ..dataset import Dataset
 from ..diagnose import diagnose
-from ..diagnose.findings import between_text, evidence_notes, experiment_lead, reshaping_notes
+from ..diagnose.findings import (
+    between_text,
+    evidence_notes,
+    experiment_lead,
+    reshaping_notes,
+    runner_up_text,
+)
 from ..diagnose.report import write_report
 from ..errors import DataError
 from ..manager import effects
@@ -343,7 +349,10 @@ def render_diagnosis(summary: dict[str, Any]) -> str:
     elif versus:
         lines.append(f"against {versus['method']}: not identified ({versus.get('error')})")
     if summary.get("margin_to_runner_up") is not None:
-        lines.append(f"margin to runner-up: {summary['margin_to_runner_up']:.2f} points")
+        lines.append(
+            f"margin to runner-up{runner_up_text(summary)}: "
+            f"{summary['margin_to_runner_up']:.2f} points"
+        )
     lines.extend(f"note: {n}" for n in evidence_notes(summary))
     if summary.get("ambiguous"):
         lines.append(summary["ambiguous"]["statement"])

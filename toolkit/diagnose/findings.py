@@ -448,6 +448,17 @@ def _as_tested(contest: dict[str, Any]) -> str:
     return out
 
 
+def runner_up_text(summary: dict[str, Any]) -> str:
+    """`` (cause, not significant)``: which finding the margin to the runner-up is measured
+    to, from :meth:`Diagnosis.to_dict` (empty without one).  A runner-up that is not
+    significant can gain more than the named cause (the margin is then negative)."""
+    cause = summary.get("runner_up")
+    top = next((f for f in summary.get("findings", []) if f["cause"] == cause), None)
+    if top is None:
+        return ""
+    return f" ({cause}{'' if top['significant'] else ', not significant'})"
+
+
 def evidence_notes(summary: dict[str, Any]) -> list[str]:
     """Sentences on how the named cause was established, from :meth:`Diagnosis.to_dict`.
 

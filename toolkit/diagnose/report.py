@@ -17,7 +17,7 @@ from ..figures import (
 from ..report import Report
 from . import Diagnosis
 from .engine import simulate_all
-from .findings import between_text, evidence_notes, experiment_lead, reshaping_notes
+from .findings import between_text, evidence_notes, experiment_lead, reshaping_notes, runner_up_text
 
 
 def explaining_signal(cause: str, data: Dataset, j: int) -> tuple[np.ndarray, str]:
@@ -68,7 +68,7 @@ def write_report(
             f"(gain as tested {best.gain:+.2f} points, adjusted p = {best.p_adjusted:.2g})."
         )
         if diagnosis.margin is not None:
-            rep.text(f"Margin to the runner-up: {diagnosis.margin:.2f} points.")
+            rep.text(f"Margin to the runner-up{runner_up_text(d)}: {diagnosis.margin:.2f} points.")
         for note in evidence_notes(d):
             rep.text(note[0].upper() + note[1:])
     if diagnosis.ambiguous:

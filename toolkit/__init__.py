@@ -10,7 +10,7 @@ from __future__ import annotations
 import warnings
 
 from . import _compat
-from .dataset import Dataset, Experiment, validation_problems
+from .dataset import Dataset, Experiment, dependent_inputs, validation_problems
 from .errors import (
     DataError,
     FMUError,
@@ -119,7 +119,7 @@ def identify(dataset: Dataset, method: str = "arx", **options: object) -> Model:
         validation_problems(dataset), DataError, f"identify ({method}) cannot run on these data:"
     )
     model = entry.create(**options).identify(dataset)
-    poor = poor_fit_warning(model)
-    if poor:
-        warnings.warn(poor[0].upper() + poor[1:], TendonkitWarning, stacklevel=2)
+    for why in (dependent_inputs(dataset), poor_fit_warning(model)):
+        if why:
+            warnings.warn(why[0].upper() + why[1:], TendonkitWarning, stacklevel=2)
     return model

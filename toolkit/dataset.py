@@ -400,6 +400,71 @@ def validation_problems(
     return p
 
 
+#: Inputs whose centred, scaled columns have a singular value below this share of the largest
+#: are linearly dependent (:func:`dependent_inputs`): round-off of data written with ten
+#: significant digits stays near 1e-10.
+DEPENDENT_INPUTS = 1e-8
+
+
+def dependent_inputs(ds: Dataset) -> str | None:
+    """Why the inputs of ``ds`` cannot be told apart, or None.
+
+    Over all experiments together, an input that is an exact affine function of the others
+    (an input recorded twice, a tension and its antagonist at a constant pretension in every
+    record) carries nothing the others do not: a model fitted to these data splits their
+    effect by least squares (minimum norm), and predicts correctly only where the inputs
+    keep that relation.  Not a problem of the data (they can still be modelled), a warning
+    (``identify``, ``diagnose``).  Constant inputs are problems of their own
+    (:func:`validation_problems`) and are left out here.
+    """
+    if ds.nu < 2 or not ds.experiments:
+        return None
+    u = np.concatenate([e.u for e in ds.experiments])
+    if u.shape[0] < 2 or not np.all(np.isfinite(u)):
+        return None
+    spread = u.std(axis=0)
+    keep = np.flatnonzero(spread > 0)
+    if keep.size < 2:
+        return None
+    z = (u[:, keep] - u[:, keep].mean(axis=0)) / spread[keep]
+    _, sv, vt = np.linalg.svd(z, full_matrices=False)
+    if not sv[-1] < DEPENDENT_INPUTS * sv[0]:
+        return None
+    # pairs first (an input recorded twice, antagonists at a constant sum): b = k·a + c
+    corr = np.abs(z.T @ z) / z.shape[0]
+    pairs = [
+        (int(keep[a]), int(keep[b]))
+        for a in range(keep.size)
+        for b in range(a + 1, keep.size)
+        if corr[a, b] > 1.0 - DEPENDENT_INPUTS
+    ]
+    said: list[str] = []
+    involved: list[int] = []
+    for a, b in pairs:
+        if b in involved:
+            continue
+        k, c = np.polyfit(u[:, a], u[:, b], 1)
+        c = c if abs(c) > 1e-9 * float(np.abs(u[:, b]).max()) else 0.0
+        said.append(
+            f"{ds.inputs[b]} = {k:.6g}·{ds.inputs[a]} {'+' if c >= 0 else '-'} {abs(c):.6g}"
+        )
+        involved += [i for i in (a, b) if i not in involved]
+    if not said:
+        v = vt[-1]
+        involved = [int(keep[i]) for i in np.flatnonzero(np.abs(v) > 1e-6 * np.abs(v).max())]
+        said.append(
+            f"a linear combination of {', '.join(ds.inputs[i] for i in involved)} is constant"
+        )
+    names = [ds.inputs[i] for i in involved]
+    how = "; ".join(said)
+    return (
+        f"the inputs {', '.join(names)} are linearly dependent in every sample ({how}): the data "
+        "cannot tell their effects apart, so a model fitted to them splits the effect between "
+        "them (least squares, minimum norm) and predicts correctly only while they keep that "
+        "relation; record them varying independently, or give one of them only."
+    )
+
+
 #: Largest magnitude accepted in data: squares (error energies, fits) must stay finite.
 MAX_MAGNITUDE = 1e150
 

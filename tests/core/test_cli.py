@@ -375,3 +375,20 @@ def test_a_model_no_better_than_the_mean_warns(tmp_path):
     assert r.returncode == 0 and out.exists()
     assert "warning: the arx model's free run explains its own training data no better" in r.stderr
     assert "nk 'auto'" in json.loads(summary.read_text())["warnings"][0]
+
+
+def test_inputs_recorded_twice_are_a_warning_not_a_silent_split(tmp_path):
+    from tendonkit.dataset import write_csv
+
+    rng = np.random.default_rng(2)
+    u = rng.standard_normal(500)
+    y = np.zeros(500)
+    for k in range(1, 500):
+        y[k] = 0.8 * y[k - 1] + 0.5 * u[k - 1]
+    data = write_csv(tmp_path / "d.csv", {"t": np.arange(500.0), "u": u, "v": u, "y": y})
+    out, summary = tmp_path / "m.json", tmp_path / "s.json"
+    r = run("identify", str(data), "--inputs", "u,v", "--outputs", "y", "-o", str(out),
+            "--json", str(summary))  # fmt: skip
+    assert r.returncode == 0 and out.exists()
+    assert "tendonkit: warning: the inputs u, v are linearly dependent" in r.stderr
+    assert "(v = 1·u + 0)" in json.loads(summary.read_text())["warnings"][0]

@@ -167,3 +167,44 @@ def test_the_python_api_reports_bad_data_as_the_cli_does():
     with pytest.raises(tk.DataError, match=r"training data: output 'y' has 1 NaN") as info:
         diagnose(bad, bad, alpha=2.0)
     assert len(info.value.problems) == 5  # 2 per dataset and the option
+
+
+def test_inputs_that_cannot_be_told_apart_are_said_to_be():
+    """An input recorded twice and a tension at a constant pretension with its antagonist
+    were accepted without a word: the model split their effect by minimum norm.  Each
+    dependence is named (``b = k·a + c``); over several experiments together the inputs may
+    vary independently, and a constant input stays a problem of its own."""
+    from tendonkit.dataset import dependent_inputs
+
+    rng = np.random.default_rng(3)
+    a, b = rng.standard_normal((2, 400))
+
+    def data(*cols, names=("a", "b", "c")):
+        u = np.column_stack(cols)
+        e = tk.Experiment(t=np.arange(400.0), u=u, y=rng.standard_normal((400, 1)))
+        return tk.Dataset(inputs=names[: u.shape[1]], outputs=("y",), experiments=(e,), dt=1.0)
+
+    assert dependent_inputs(data(a, b)) is None
+    said = dependent_inputs(data(a, b, 210.0 - a))
+    assert said is not None and "(c = -1·a + 210)" in said and "cannot tell" in said
+    said = dependent_inputs(data(a, b, a + b))
+    assert said is not None and "a linear combination of a, b, c is constant" in said
+    twice = data(a, a.copy(), names=("a", "b"))
+    assert "(b = 1·a + 0)" in (dependent_inputs(twice) or "")
+    # two experiments, each at its own pretension: together they tell the tendons apart
+    e1, e2 = data(a, 210.0 - a).experiments[0], data(b, 190.0 - b).experiments[0]
+    both = tk.Dataset(inputs=("a", "b"), outputs=("y",), experiments=(e1, e2), dt=1.0)
+    assert dependent_inputs(both) is None
+    # identify says so, as a TendonkitWarning, and still fits
+    y = np.zeros((400, 1))
+    for k in range(1, 400):
+        y[k] = 0.8 * y[k - 1] + 0.5 * a[k - 1]
+    same = tk.Dataset(
+        inputs=("a", "b"),
+        outputs=("y",),
+        experiments=(tk.Experiment(t=np.arange(400.0), u=np.column_stack([a, a]), y=y),),
+        dt=1.0,
+    )
+    with pytest.warns(tk.TendonkitWarning, match=r"inputs a, b are linearly dependent"):
+        model = tk.identify(same, "arx", na=1, nb=1)
+    assert model.provenance.training_fit["y"] > 99.0

@@ -356,6 +356,11 @@ def test_a_cubic_stiffness_is_found_and_the_result_follows_the_schema():
         assert {"cause", "gain", "params", "evidence", "p_value", "p_adjusted", "test"} <= set(f)
     assert out["named_effect"] == "nonlinear_stiffness"
     assert out["margin_to_runner_up"] == pytest.approx(d.margin)
+    # the margin says which finding it is measured to, and whether that one is significant
+    runner = next(f for f in out["findings"] if f["cause"] == out["runner_up"])
+    line = next(x for x in render_diagnosis(out).splitlines() if x.startswith("margin"))
+    tail = "" if runner["significant"] else ", not significant"
+    assert line.startswith(f"margin to runner-up ({runner['cause']}{tail}): "), line
 
 
 def test_a_single_cause_ends_after_one_step():

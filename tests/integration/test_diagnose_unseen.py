@@ -393,6 +393,37 @@ def test_a_dead_time_switched_on_at_rest_is_the_only_cause(dead, seed):
     assert d.extended_fit["y"] > 97.0, d.extended_fit
 
 
+def drifting_integrator(seed: int) -> tuple[Dataset, Dataset]:
+    """A pure integrator at 10 ms driven by a two-level input with a bias (its output ramps:
+    0 -> 6.6 over the training record), 2 % white noise on the output; nothing hidden.
+    Written as a probe (stop 48), outside every calibration."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for name, n in (("train", 2000), ("valid", 1000)):
+        u = 0.3 + 0.5 * np.repeat(rng.choice([-1.0, 1.0], size=n // 20), 20)
+        y = np.concatenate([[0.0], np.cumsum(u[:-1]) * 0.01])
+        y = y + 0.02 * np.std(y) * rng.standard_normal(n)
+        e = Experiment(t=np.arange(n) * 0.01, u=u[:, None], y=y[:, None], name=name)
+        out.append(Dataset(inputs=("u",), outputs=("y",), experiments=(e,), dt=0.01))
+    return out[0], out[1]
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="a gain that only repairs the least-squares baseline's noise bias is named (not yet "
+    "told apart; docs/diagnose.md, 'What the first step cannot tell from a biased baseline')",
+)
+def test_a_gain_that_only_repairs_the_baselines_least_squares_fit_names_no_cause():
+    """ARX(6, 6) by least squares fits the validation record at 97.51 % (the noise allows 97.96),
+    not biased enough for the N4SID check; a Bouc–Wen operator gains +0.38 (p_adj 1e-5) by
+    closing part of that distance, and ``hysteresis`` is named.  The same ARX refined by its
+    simulation error fits 97.86 %, the refined hysteresis model +0.03 over it.  Strict: the
+    suite fails the day this false alarm is gone, so the list of misses stays true."""
+    train, valid = drifting_integrator(11)
+    d = diagnose(train, valid)
+    assert d.cause == "none", [(f.effect, f.gain) for f in d.findings]
+
+
 def _bench(name: str) -> ModuleType:
     """``benchmarks/<name>.py``, loaded from its file."""
     import importlib.util

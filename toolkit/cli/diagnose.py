@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -19,7 +20,7 @@ from ..diagnose.findings import (
     runner_up_text,
 )
 from ..diagnose.report import write_report
-from ..errors import DataError
+from ..errors import DataError, TendonkitWarning
 from ..manager import effects
 from ..manager import identifiers as identifier_registry
 from .common import (
@@ -165,7 +166,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
             f"training and validation sample times differ: {data[0].dt} s and {data[1].dt} s."
         )
     raise_problems(problems, "tendonkit diagnose cannot run:")
-    with output_dirs(args.report):
+    with output_dirs(args.report), warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always", TendonkitWarning)
         train, valid = data
         result = diagnose(
             train,
@@ -192,11 +194,19 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         if model_path is not None:
             atomic_write(model_path, result.extended.save)
         summary = result.to_dict(model_path)
+        summary["warnings"] = [
+            str(w.message) for w in said if issubclass(w.category, TendonkitWarning)
+        ]
         if args.json:
             write_json(args.json, summary)
         if args.report:
             index = write_report(result, valid, args.report, model_path)
             summary["report"] = str(index)
+    for w in said:  # the others as Python shows them, as before
+        if not issubclass(w.category, TendonkitWarning):
+            warnings.showwarning(w.message, w.category, w.filename, w.lineno)
+    for text in summary["warnings"]:
+        print(f"tendonkit: warning: {text}", file=sys.stderr)
     print(render_diagnosis(summary))
     return 0
 
@@ -212,9 +222,8 @@ def _render_step(st: dict[str, Any]) -> list[str]:
             else "none"
         )
         what = "confirmed" if st.get("stop") else "significant"
-        more = " more" if st["step"] > 1 else ""
         lines = [
-            f"  {st['step']}. nothing{more} {what} from {st['fit_before']:.2f} % (best of "
+            f"  {st['step']}. nothing more {what} from {st['fit_before']:.2f} % (best of "
             f"{len(st['findings'])} effects tried: {best})"
         ]
         if st.get("stop"):

@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from ..compare import compare, render_compare
-from ..dataset import Dataset, write_csv
+from ..dataset import Dataset, dependent_inputs, write_csv
 from ..errors import DataError, SimulationError
 from ..identification import poor_fit_warning
 from ..predict import predict
@@ -119,7 +119,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
     if cutoff is not None:
         model = noted(model, f"outputs low-pass filtered at {cutoff:.6g} Hz (zero-phase)")
     atomic_write(args.output, model.save)
-    poor = poor_fit_warning(model)
+    said = [w for w in (dependent_inputs(data), poor_fit_warning(model)) if w]
     summary = {
         "model": str(args.output),
         "method": args.method,
@@ -127,14 +127,14 @@ def cmd_identify(args: argparse.Namespace) -> int:
         "training_fit": model.provenance.training_fit,
         "samples": data.n_samples,
         "lowpass_hz": cutoff,
-        "warnings": [poor] if poor else [],
+        "warnings": said,
     }
     if args.json:
         write_json(args.json, summary)
     fits = ", ".join(f"{k} {v:.2f} %" for k, v in model.provenance.training_fit.items())
     print(f"{args.method}: {model.kind} model written to {args.output} (training fit: {fits})")
-    if poor:
-        print(f"tendonkit: warning: {poor}", file=sys.stderr)
+    for w in said:
+        print(f"tendonkit: warning: {w}", file=sys.stderr)
     return 0
 
 

@@ -50,6 +50,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import pickle
+import warnings
 from collections.abc import Collection, Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -57,8 +58,15 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ..dataset import Dataset, validation_problems
-from ..errors import DataError, OptionError, PluginError, TendonkitError, raise_if
+from ..dataset import Dataset, dependent_inputs, validation_problems
+from ..errors import (
+    DataError,
+    OptionError,
+    PluginError,
+    TendonkitError,
+    TendonkitWarning,
+    raise_if,
+)
 from ..identification import training_fit, without_training_fit
 from ..manager import effects as effect_registry
 from ..manager import identifiers
@@ -238,6 +246,9 @@ def diagnose(
         DataError if data_problems else OptionError,
         "diagnose cannot run:",
     )
+    dependent = dependent_inputs(train)
+    if dependent:
+        warnings.warn("Training data: " + dependent, TendonkitWarning, stacklevel=2)
     # One bar over every stage, so a long baseline identification is not a silent wait.
     bar = tqdm(
         total=len(settings.effects) + 2,
@@ -271,11 +282,7 @@ def diagnose(
     steps = continue_sequence(
         diagnosis, trials, registry, train, valid, settings, bar, base.identifier
     )
-    if steps and steps[0].cause == "none":  # the first cause was not confirmed
-        diagnosis = dataclasses.replace(
-            diagnosis, cause="none", named_effect=None, ambiguous=None, steps=steps
-        )
-    elif steps:
+    if steps:
         diagnosis = dataclasses.replace(diagnosis, steps=steps)
     if versus is not None:
         bar.set_description(f"diagnose: {versus} for comparison")
@@ -1330,13 +1337,7 @@ def continue_sequence(
     named = next((t for t in trials if t.effect == best.effect), None)
     build = named.build if named is not None else None
     model, build, fit_now = refine_named(best, build, identifier, train, valid, settings)
-    step = _step(first, 1, None, model, fit_now)
-    first_check = confirm_first(first, model, identifier, train, valid, settings)
-    if first_check is not None:
-        if first_check.get("confirmed") is False:
-            return (_unconfirmed(step, first_check),)
-        step = dataclasses.replace(step, confirmation=first_check)
-    steps = [step]
+    steps = [_step(first, 1, None, model, fit_now)]
     done = {best.cause}
     refined = isinstance(identifier, RefinedFallback)
     while len(steps) < settings.max_causes:
@@ -1414,62 +1415,6 @@ def continue_sequence(
 CONFIRM_LEVEL = 0.05
 
 
-def confirm_first(
-    first: Diagnosis,
-    model: Model,
-    identifier: Any,
-    train: Dataset,
-    valid: Dataset,
-    settings: Settings,
-) -> dict[str, Any] | None:
-    """The first step's confirmation: the gain of its named model, as handed on, over the
-    baseline refined by its simulation error.
-
-    The first step is tested, like every step, by its extension's least-squares fit against
-    the baseline's.  An equation-error baseline is biased when its outputs carry noise, and
-    a baseline that the N4SID check does not call biased (error energy below
-    :data:`BIAS_RATIO` times N4SID's) can still be far enough from the simulation-error
-    optimum of its own structure for any added flexibility to gain by closing part of that
-    distance: an integrator driven with an input bias, measured with 2 % noise, gave
-    ARX(6, 6) 97.51 %, a Bouc–Wen operator 97.89 % (``hysteresis`` +0.38 points, p_adj
-    1e-5) — and the baseline refined by its simulation error 97.86 %.  So where the named
-    extension is refined (``refine=True``) and the baseline was fitted by equation error or
-    by N4SID (not refined already: :class:`RefinedFallback`), the baseline is refined too
-    (on the whole training record; kept where it simulates the validation data at most
-    ``min_gain`` points worse than before, as a refined extension is), and the named model
-    must still gain ``min_gain`` points over it: the first step's significance was shown by
-    its test (every route, Holm over the effects); what refinement can remove is its effect
-    size.  Not a second significance test: on slow data its free run has few batches (the
-    slow tanks' 40-sample dead time: 93.4 % against the refined baseline's 81.8 %, 11
-    batches, p = 0.06).  A rule that can only remove causes keeps the level of the
-    sequence.  The free-run test is reported beside it (``p_value``).  None where it does
-    not apply: refinement off, a baseline refined already, or a refined baseline not kept.
-    A cause seen beside the free run (:func:`_evidence_beside_the_free_run`) is not judged
-    this way (``applied`` false, with the reason).
-    """
-    if not settings.refine or identifier is None or isinstance(identifier, RefinedFallback):
-        return None
-    best = first.best
-    assert best is not None
-    other = _evidence_beside_the_free_run(best)
-    if other is not None:
-        return {"applied": False, "reason": other}
-    baseline = _refined(first.baseline, train)
-    if baseline is first.baseline:
-        return None
-    test = confirm_step(baseline, model, valid)
-    if not _keeps_refined(_mean(first.baseline_fit), test["fit_before"], settings.min_gain):
-        return None
-    gain = test["fit_after"] - test["fit_before"]
-    return {
-        **{k: v for k, v in test.items() if k != "level"},
-        "route": "free run, against the baseline refined",
-        "refined_gain": gain,
-        "min_gain": settings.min_gain,
-        "confirmed": bool(gain >= settings.min_gain),
-    }
-
-
 def _evidence_beside_the_free_run(f: Finding) -> str | None:
     """Why a named finding's confirmation would not test its evidence, or None.
 
@@ -1521,20 +1466,12 @@ def _unconfirmed(step: Step, confirmation: dict[str, Any]) -> Step:
     """The last step of a sequence whose named cause failed :func:`confirm_step`: it names
     nothing, like a step where nothing is significant, and says why."""
     p_adj = f", p_adj {step.p_adjusted:.2g}" if step.p_adjusted is not None else ""
-    if "refined_gain" in confirmation:  # the first step's (confirm_first)
-        other, fitted = "the baseline refined by its simulation error", "baseline's"
-        why = (
-            f"a gain of {confirmation['refined_gain']:+.2f} points, less than min_gain "
-            f"{confirmation['min_gain']:g}"
-        )
-    else:
-        other, fitted = "the previous step's", "previous extension's"
-        why = f"p = {confirmation['p_value']:.2g} >= {CONFIRM_LEVEL}"
     stop = (
         f"{step.cause} ({step.gain:+.2f} points as tested{p_adj}) is not confirmed: the "
         f"model it hands on simulates the validation data {confirmation['fit_after']:.2f} % "
-        f"against {other} {confirmation['fit_before']:.2f} % ({why}); its gain as tested "
-        f"made up for the {fitted} least-squares fit, which refinement removes"
+        f"against the previous step's {confirmation['fit_before']:.2f} % (p = "
+        f"{confirmation['p_value']:.2g} >= {CONFIRM_LEVEL}); its gain as tested made up for the "
+        "previous extension's least-squares fit, which refinement removes"
     )
     return dataclasses.replace(
         step,

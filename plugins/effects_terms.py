@@ -101,7 +101,8 @@ class CoulombFriction(_TermEffect):
     cause = "coulomb_friction"
     description = (
         "Coulomb friction: adds tanh(velocity/ε) of every output (a smoothed sign of the "
-        "direction of motion), with tanh² for asymmetric friction (Fc+ ≠ Fc-); or, for "
+        "direction of motion), with tanh² for asymmetric friction (Fc+ ≠ Fc-), or a narrow "
+        "play of every output (the direction held while the output stands still); or, for "
         "friction in a force transmission, a play (dead band that follows the direction) on "
         "every input."
     )
@@ -118,6 +119,11 @@ class CoulombFriction(_TermEffect):
     speed_quantiles = (0.02,)
     #: Velocity spans (samples) of the friction between two outputs.
     relative_spans = (1, 3, 8)
+    #: Half-widths (fractions of the output's standard deviation) of the play that holds the
+    #: direction of motion at rest: ``y - play(y)`` is ``±w`` while the output moves and keeps
+    #: its last sign while it does not (:meth:`candidates`).  No wider: a play of 0.15 std or
+    #: more is an elastic range, the hysteresis effect's.
+    direction_widths = (0.02, 0.05)
 
     def extend(self, ctx: Context) -> Extension | None:
         """Friction proper first; its asymmetry only if a reversing force is supported.
@@ -206,6 +212,27 @@ class CoulombFriction(_TermEffect):
                 # zero at rest, so the asymmetry is not a constant load (that is gravity's).
                 sq = [Term((t.factors[0], t.factors[0])) for t in terms]
                 out.append(({**params, "asymmetric": True}, [*terms, *sq]))
+        # The direction of motion held at rest: a play of the output narrower than any elastic
+        # range.  A joint that sticks (a spring against the friction band) stands still, and
+        # the sign of a measured velocity there is the sign of the noise; the play keeps the
+        # last direction until the output has moved back by 2 w.  On a two-axis tendon joint
+        # with Coulomb friction against its spring (2 % noise; a probe, stop 49) friction by
+        # the one-sample velocity's sign gained +3.9 / +6.4 points and the hysteresis effect's
+        # plays, whose weight sat on the narrowest (0.05 std), +4.4 / +6.9: hysteresis was named.
+        mu = y.mean(axis=0)
+        sd = np.where(y.std(axis=0) > 0, y.std(axis=0), 1.0)
+        for w in self.direction_widths:
+            terms = [
+                Term((Factor(name, fn="play", lag=1, scale=float(1.0 / sd[j]),
+                             offset=float(mu[j]), param=w),))
+                for j, name in enumerate(ctx.train.outputs)
+            ]  # fmt: skip
+            params = {
+                "structure": "sign of velocity, held at rest (a narrow play of the output)",
+                "half_width_in_std": w,
+                "asymmetric": False,
+            }
+            out.append((params, terms))
         # Friction between two bodies whose positions are both outputs (a joint's bearing, a
         # slipping clutch): the sign of their relative velocity (plugins/_bodies.py)
         for pair in _bodies.screened_pairs(ctx):
@@ -731,8 +758,12 @@ class Hysteresis(_TermEffect):
     #: (negative: the loop hardens on loading, as in the Bouc-Wen benchmark; 0.5: softens).
     bouc_wen_a = (0.25, 0.5, 1.0, 2.0)
     bouc_wen_ratio = (-1.5, -0.5, 0.5)
-    #: Half-widths of a play, as fractions of the output's standard deviation.
+    #: Half-widths of a play, as fractions of the output's standard deviation (the
+    #: Prandtl-Ishlinskii candidate's).  A play alone is tried at the wider ones only: a
+    #: narrower one holds the direction of motion at rest, which is friction's
+    #: (``CoulombFriction.direction_widths``): its elastic range is within the noise.
     play_fractions = (0.05, 0.15, 0.4)
+    single_play_fractions = (0.15, 0.4)
     #: The Bouc-Wen shapes tried between two outputs.
     between_a = (0.5, 2.0)
     between_ratio = (-0.5, 0.5)
@@ -757,7 +788,7 @@ class Hysteresis(_TermEffect):
         ]
         outs += [
             ({"structure": "play", "half_width_in_std": w}, operator("play", w))
-            for w in self.play_fractions
+            for w in self.single_play_fractions
         ]
         # Prandtl-Ishlinskii: the plays of every width together, each with its own weight (a
         # loop made of straight pieces, any mix of softening and hardening)

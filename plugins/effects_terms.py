@@ -189,7 +189,7 @@ class CoulombFriction(_TermEffect):
         return cands
 
     def candidates(self, ctx: Context) -> list[tuple[dict[str, Any], list[Term]]]:
-        out = []
+        out: list[tuple[dict[str, Any], list[Term]]] = []
         y = ctx.train.y
         for m in (1, 3, 8, 20):
             if 4 * m >= min(e.n_samples for e in ctx.train.experiments):
@@ -227,12 +227,12 @@ class CoulombFriction(_TermEffect):
                              offset=float(mu[j]), param=w),))
                 for j, name in enumerate(ctx.train.outputs)
             ]  # fmt: skip
-            params = {
+            held: dict[str, Any] = {
                 "structure": "sign of velocity, held at rest (a narrow play of the output)",
                 "half_width_in_std": w,
                 "asymmetric": False,
             }
-            out.append((params, terms))
+            out.append((held, terms))
         # Friction between two bodies whose positions are both outputs (a joint's bearing, a
         # slipping clutch): the sign of their relative velocity (plugins/_bodies.py)
         for pair in _bodies.screened_pairs(ctx):

@@ -401,9 +401,37 @@ def validation_problems(
 
 
 #: Inputs whose centred, scaled columns have a singular value below this share of the largest
-#: are linearly dependent (:func:`dependent_inputs`): round-off of data written with ten
-#: significant digits stays near 1e-10.
-DEPENDENT_INPUTS = 1e-8
+#: are linearly dependent (:func:`dependent_inputs`).  Data written at a fixed resolution
+#: keep a dependence only to that resolution: tensions of std 20 N rounded to 1e-4 N leave
+#: about 2e-6; measured tensions with 0.3 N of noise about 1e-2.
+DEPENDENT_INPUTS = 1e-5
+
+
+def _null_directions(z: np.ndarray) -> tuple[np.ndarray, int]:
+    """``(vt, k)``: the right singular vectors of ``z`` and how many of the last are null
+    (singular value below :data:`DEPENDENT_INPUTS` times the largest)."""
+    _, sv, vt = np.linalg.svd(z, full_matrices=False)
+    return vt, int(np.sum(sv < DEPENDENT_INPUTS * sv[0]))
+
+
+def _reduced(rows: np.ndarray) -> np.ndarray:
+    """``rows`` (a basis of the null directions) in reduced row echelon form: each row then
+    involves as few inputs as the basis allows (two separate dependences stay apart)."""
+    m = rows.copy()
+    r = 0
+    for col in range(m.shape[1]):
+        if r == m.shape[0]:
+            break
+        p = r + int(np.argmax(np.abs(m[r:, col])))
+        if abs(m[p, col]) < 1e-6:
+            continue
+        m[[r, p]] = m[[p, r]]
+        m[r] /= m[r, col]
+        for i in range(m.shape[0]):
+            if i != r:
+                m[i] -= m[i, col] * m[r]
+        r += 1
+    return m
 
 
 def dependent_inputs(ds: Dataset) -> str | None:
@@ -413,9 +441,12 @@ def dependent_inputs(ds: Dataset) -> str | None:
     (an input recorded twice, a tension and its antagonist at a constant pretension in every
     record) carries nothing the others do not: a model fitted to these data splits their
     effect by least squares (minimum norm), and predicts correctly only where the inputs
-    keep that relation.  Not a problem of the data (they can still be modelled), a warning
-    (``identify``, ``diagnose``).  Constant inputs are problems of their own
-    (:func:`validation_problems`) and are left out here.
+    keep that relation.  Several records at different pretensions tell the tendons apart
+    (their levels differ), and are not reported.  Not a problem of the data (they can still
+    be modelled), a warning (``identify``, ``diagnose``).  Each pair that is dependent is
+    named (``b = k·a + c``); a dependence among more inputs that remains once one input of
+    each pair is left out is named as a constant combination.  Constant inputs are problems
+    of their own (:func:`validation_problems`) and are left out here.
     """
     if ds.nu < 2 or not ds.experiments:
         return None
@@ -423,45 +454,38 @@ def dependent_inputs(ds: Dataset) -> str | None:
     if u.shape[0] < 2 or not np.all(np.isfinite(u)):
         return None
     spread = u.std(axis=0)
-    keep = np.flatnonzero(spread > 0)
-    if keep.size < 2:
+    keep = [int(i) for i in np.flatnonzero(spread > 0)]
+    if len(keep) < 2:
         return None
-    z = (u[:, keep] - u[:, keep].mean(axis=0)) / spread[keep]
-    _, sv, vt = np.linalg.svd(z, full_matrices=False)
-    if not sv[-1] < DEPENDENT_INPUTS * sv[0]:
+    z = (u - u.mean(axis=0)) / np.where(spread > 0, spread, 1.0)
+    if _null_directions(z[:, keep])[1] == 0:
         return None
-    # pairs first (an input recorded twice, antagonists at a constant sum): b = k·a + c
-    corr = np.abs(z.T @ z) / z.shape[0]
-    pairs = [
-        (int(keep[a]), int(keep[b]))
-        for a in range(keep.size)
-        for b in range(a + 1, keep.size)
-        if corr[a, b] > 1.0 - DEPENDENT_INPUTS
-    ]
     said: list[str] = []
     involved: list[int] = []
-    for a, b in pairs:
-        if b in involved:
-            continue
-        k, c = np.polyfit(u[:, a], u[:, b], 1)
-        c = c if abs(c) > 1e-9 * float(np.abs(u[:, b]).max()) else 0.0
-        said.append(
-            f"{ds.inputs[b]} = {k:.6g}·{ds.inputs[a]} {'+' if c >= 0 else '-'} {abs(c):.6g}"
-        )
-        involved += [i for i in (a, b) if i not in involved]
-    if not said:
-        v = vt[-1]
-        involved = [int(keep[i]) for i in np.flatnonzero(np.abs(v) > 1e-6 * np.abs(v).max())]
-        said.append(
-            f"a linear combination of {', '.join(ds.inputs[i] for i in involved)} is constant"
-        )
-    names = [ds.inputs[i] for i in involved]
+    dropped: set[int] = set()
+    for x, a in enumerate(keep):
+        for b in keep[x + 1 :]:
+            if a in dropped or b in dropped or _null_directions(z[:, [a, b]])[1] == 0:
+                continue
+            k, c = np.polyfit(u[:, a], u[:, b], 1)
+            c = c if abs(c) > 1e-9 * float(np.abs(u[:, b]).max()) else 0.0
+            sign = "+" if c >= 0 else "-"
+            said.append(f"{ds.inputs[b]} = {k:.6g}·{ds.inputs[a]} {sign} {abs(c):.6g}")
+            involved += [i for i in (a, b) if i not in involved]
+            dropped.add(b)
+    rest = [i for i in keep if i not in dropped]
+    vt, null = _null_directions(z[:, rest]) if len(rest) >= 2 else (None, 0)
+    for v in _reduced(vt[len(rest) - null :]) if vt is not None and null else []:
+        names = [rest[i] for i in np.flatnonzero(np.abs(v) > 1e-3 * np.abs(v).max())]
+        said.append(f"a linear combination of {', '.join(ds.inputs[i] for i in names)} is constant")
+        involved += [i for i in names if i not in involved]
     how = "; ".join(said)
     return (
-        f"the inputs {', '.join(names)} are linearly dependent in every sample ({how}): the data "
-        "cannot tell their effects apart, so a model fitted to them splits the effect between "
-        "them (least squares, minimum norm) and predicts correctly only while they keep that "
-        "relation; record them varying independently, or give one of them only."
+        f"the inputs {', '.join(ds.inputs[i] for i in involved)} are linearly dependent in "
+        f"every sample ({how}): the data cannot tell their effects apart, so a model fitted "
+        "to them splits the effect between them (least squares, minimum norm) and predicts "
+        "correctly only while they keep that relation; record them varying independently, "
+        "or give one of them only."
     )
 
 

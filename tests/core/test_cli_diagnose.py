@@ -244,3 +244,21 @@ def test_every_structure_option_given_is_the_baseline_as_given(tmp_path):
     assert choice["baseline"] == {"na": 2, "nb": [2], "nk": [3], "offset": False}, choice
     assert choice["dead_time_left_to_diagnosis"] == {}
     assert "baseline structure as given" in r.stdout
+
+
+def test_inputs_the_data_cannot_tell_apart_are_a_warning(tmp_path):
+    """An input recorded twice: the diagnosis runs, and says so when it starts (stderr, as
+    identify does) and in the JSON."""
+    cols = [_prbs_plant(1500, 1, 0.9), _prbs_plant(800, 2, 0.9)]
+    for c in cols:
+        c["force2"] = c["force"].copy()
+    tr = write_csv(tmp_path / "train.csv", cols[0])
+    va = write_csv(tmp_path / "valid.csv", cols[1])
+    out = tmp_path / "d.json"
+    opts = ["--option", "na=2", "--option", "nb=2", "--option", "nk=1", "--option", "offset=false"]
+    r = run("diagnose", str(tr), str(va), "--inputs", "force,force2", "--outputs", "pos",
+            *opts, "--json", str(out))  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    said = "tendonkit: warning: Training data: the inputs force, force2 are linearly dependent"
+    assert r.stderr.count(said) == 1, r.stderr
+    assert "(force2 = 1·force + 0)" in json.loads(out.read_text())["warnings"][0]

@@ -363,6 +363,22 @@ def test_a_cubic_stiffness_is_found_and_the_result_follows_the_schema():
     assert line.startswith(f"margin to runner-up ({runner['cause']}{tail}): "), line
 
 
+def test_the_runner_up_says_whether_it_is_significant():
+    from tendonkit.diagnose.findings import runner_up_text
+
+    summary = {
+        "runner_up": "hysteresis",
+        "findings": [
+            {"cause": "coulomb_friction", "significant": True},
+            {"cause": "hysteresis", "significant": False},
+        ],
+    }
+    assert runner_up_text(summary) == " (hysteresis, not significant)"
+    summary["findings"][1]["significant"] = True
+    assert runner_up_text(summary) == " (hysteresis)"
+    assert runner_up_text({"runner_up": None, "findings": []}) == ""
+
+
 def test_a_single_cause_ends_after_one_step():
     """The sequence goes on from the named model and stops when nothing more is significant."""
     valid = _arx_data(63, 2000, cubic=0.3)
@@ -1490,6 +1506,9 @@ def test_a_candidate_that_reshapes_a_named_cause_is_left_out_of_the_choice():
     assert reshapes("saturation", {"where": "inputs"}, "static_nonlinearity", wh)
     assert not reshapes("saturation", {"where": "output"}, "static_nonlinearity", wh)
     assert reshapes("coulomb_friction", {"structure": "sign of velocity"}, "hysteresis", {})
+    held = {"structure": "sign of velocity, held at rest (a narrow play of the output)"}
+    assert reshapes("coulomb_friction", held, "hysteresis", {"structure": "bouc_wen"})
+    assert reshapes("hysteresis", {"structure": "prandtl_ishlinskii"}, "coulomb_friction", held)
     assert not reshapes("coulomb_friction", {"structure": "play in force space"}, "hysteresis", {})
     assert not reshapes("saturation", {"where": "inputs"}, "dead_zone", {})  # two kinds
     assert not reshapes("static_nonlinearity", {}, "dead_zone", {})  # unknown structure: kept

@@ -166,8 +166,10 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
             f"training and validation sample times differ: {data[0].dt} s and {data[1].dt} s."
         )
     raise_problems(problems, "tendonkit diagnose cannot run:")
-    with output_dirs(args.report), warnings.catch_warnings(record=True) as said:
+    told: list[str] = []
+    with output_dirs(args.report), warnings.catch_warnings():
         warnings.simplefilter("always", TendonkitWarning)
+        warnings.showwarning = _teller(told, warnings.showwarning)
         train, valid = data
         result = diagnose(
             train,
@@ -194,21 +196,29 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         if model_path is not None:
             atomic_write(model_path, result.extended.save)
         summary = result.to_dict(model_path)
-        summary["warnings"] = [
-            str(w.message) for w in said if issubclass(w.category, TendonkitWarning)
-        ]
+        summary["warnings"] = list(told)
         if args.json:
             write_json(args.json, summary)
         if args.report:
             index = write_report(result, valid, args.report, model_path)
             summary["report"] = str(index)
-    for w in said:  # the others as Python shows them, as before
-        if not issubclass(w.category, TendonkitWarning):
-            warnings.showwarning(w.message, w.category, w.filename, w.lineno)
-    for text in summary["warnings"]:
-        print(f"tendonkit: warning: {text}", file=sys.stderr)
     print(render_diagnosis(summary))
     return 0
+
+
+def _teller(told: list[str], shown: Any) -> Any:
+    """A ``warnings.showwarning`` that prints a :class:`TendonkitWarning` as the CLI's
+    ``tendonkit: warning:`` line when it is raised (kept in ``told`` for ``--json``) and
+    shows any other warning as ``shown`` does."""
+
+    def show(message: Any, category: Any, filename: str, lineno: int, *rest: Any) -> None:
+        if issubclass(category, TendonkitWarning):
+            told.append(str(message))
+            print(f"tendonkit: warning: {message}", file=sys.stderr)
+        else:
+            shown(message, category, filename, lineno, *rest)
+
+    return show
 
 
 def _render_step(st: dict[str, Any]) -> list[str]:

@@ -256,10 +256,15 @@ def case(shared: Any, job: tuple[str, int]) -> dict[str, Any]:
         train, valid = chain(effect, p, seed), chain(effect, p, seed + 500)
     t0 = time.perf_counter()
     d = diagnose(train, valid)
+    return result_row(effect, seed, p, d, time.perf_counter() - t0)
+
+
+def result_row(effect: str, seed: int, params: Any, d: Any, seconds: float) -> dict[str, Any]:
+    """One case's row of the results (also bench_diagnose_pantilt.py's)."""
     return {
         "effect": effect,
         "seed": seed,
-        "params": p,
+        "params": params,
         "causes": list(d.causes),
         "right": d.cause == effect,
         "baseline": d.baseline_method,
@@ -268,8 +273,36 @@ def case(shared: Any, job: tuple[str, int]) -> dict[str, Any]:
         "findings": [
             {"effect": f.effect, "gain": f.gain, "p_adjusted": f.p_adjusted} for f in d.findings[:3]
         ],
-        "seconds": time.perf_counter() - t0,
+        "seconds": seconds,
     }
+
+
+def run_cases(
+    case_fn: Any, jobs: list[tuple[str, int]], n_jobs: int, shared: Any, out: Any
+) -> None:
+    """Run every case on ``n_jobs`` workers, print a line per case and the score, and write the
+    rows to ``out`` (a JSON file) when given (also bench_diagnose_pantilt.py's)."""
+    load = os.getloadavg()[0]
+    t0 = time.perf_counter()
+    rows: list[dict[str, Any]] = [{} for _ in jobs]
+    for o in run_tasks(case_fn, jobs, jobs=n_jobs, shared=shared):
+        if o.error is not None:
+            raise SystemExit(f"{jobs[o.index]} failed: {o.error}")
+        r = rows[o.index] = o.value
+        top = ", ".join(
+            f"{f['effect']} {f['gain']:+.2f} ({f['p_adjusted']:.0e})" for f in r["findings"]
+        )
+        mark = "right" if r["right"] else "MISS"
+        print(
+            f"{r['effect']:20s} {r['seed']}  {mark:5s} causes {', '.join(r['causes'])} "
+            f"(via {r['baseline']}; {top}) {r['seconds']:.0f} s",
+            flush=True,
+        )
+    print(f"named right: {sum(r['right'] for r in rows)} of {len(rows)}")
+    if out:
+        machine = {"load_before": load, "load_after": os.getloadavg()[0]}
+        machine["wall_s"] = time.perf_counter() - t0
+        Path(out).write_text(json.dumps({"rows": rows, "machine": machine}, indent=1))
 
 
 def main() -> None:
@@ -283,28 +316,7 @@ def main() -> None:
     effects = {"tanks": TANK_EFFECTS, "sea": SEA_EFFECTS}.get(args.plant, EFFECTS)
     jobs = [(e, int(s)) for e in effects for s in args.seeds.split(",")]
     areas = tuple(float(a) for a in args.areas.split(","))
-    load = os.getloadavg()[0]
-    t0 = time.perf_counter()
-    rows: list[dict[str, Any]] = [{} for _ in jobs]
-    for o in run_tasks(case, jobs, jobs=args.jobs, shared=(args.plant, areas)):
-        if o.error is not None:
-            raise SystemExit(f"{jobs[o.index]} failed: {o.error}")
-        r = rows[o.index] = o.value
-        top = ", ".join(
-            f"{f['effect']} {f['gain']:+.2f} ({f['p_adjusted']:.0e})" for f in r["findings"]
-        )
-        mark = "right" if r["right"] else "MISS"
-        print(
-            f"{r['effect']:20s} {r['seed']}  {mark:5s} causes {', '.join(r['causes'])} "
-            f"(via {r['baseline']}; {top}) {r['seconds']:.0f} s",
-            flush=True,
-        )
-    right = sum(r["right"] for r in rows)
-    print(f"named right: {right} of {len(rows)}")
-    if args.out:
-        machine = {"load_before": load, "load_after": os.getloadavg()[0]}
-        machine["wall_s"] = time.perf_counter() - t0
-        Path(args.out).write_text(json.dumps({"rows": rows, "machine": machine}, indent=1))
+    run_cases(case, jobs, args.jobs, (args.plant, areas), args.out)
 
 
 if __name__ == "__main__":

@@ -37,19 +37,16 @@ so that the command-line runs of the probe and this script see the same numbers.
 from __future__ import annotations
 
 import argparse
-import json
 import math
-import os
 import time
-from pathlib import Path
 from typing import Any
 
 import numpy as np
+from bench_diagnose_chain import result_row, run_cases
 from numba import njit
 from scipy import signal
 
 from tendonkit.dataset import Dataset, Experiment
-from tendonkit.parallel import run_tasks
 
 DT = 0.02
 SUB = 80  # sub-steps per sample -> 0.25 ms
@@ -335,18 +332,7 @@ def case(shared: Any, job: tuple[str, int]) -> dict[str, Any]:
     params, train, valid = records(effect, seed)
     t0 = time.perf_counter()
     d = diagnose(train, valid)
-    return {
-        "effect": effect,
-        "seed": seed,
-        "params": params,
-        "causes": list(d.causes),
-        "right": d.cause == effect,
-        "baseline": d.baseline_method,
-        "findings": [
-            {"effect": f.effect, "gain": f.gain, "p_adjusted": f.p_adjusted} for f in d.findings[:3]
-        ],
-        "seconds": time.perf_counter() - t0,
-    }
+    return result_row(effect, seed, params, d, time.perf_counter() - t0)
 
 
 def main() -> None:
@@ -356,27 +342,7 @@ def main() -> None:
     parser.add_argument("--out", default=None, help="JSON file for the results")
     args = parser.parse_args()
     jobs = [(e, int(s)) for e in EFFECTS for s in args.seeds.split(",")]
-    load = os.getloadavg()[0]
-    t0 = time.perf_counter()
-    rows: list[dict[str, Any]] = [{} for _ in jobs]
-    for o in run_tasks(case, jobs, jobs=args.jobs, shared=None):
-        if o.error is not None:
-            raise SystemExit(f"{jobs[o.index]} failed: {o.error}")
-        r = rows[o.index] = o.value
-        top = ", ".join(
-            f"{f['effect']} {f['gain']:+.2f} ({f['p_adjusted']:.0e})" for f in r["findings"]
-        )
-        mark = "right" if r["right"] else "MISS"
-        print(
-            f"{r['effect']:20s} {r['seed']}  {mark:5s} causes {', '.join(r['causes'])} "
-            f"(via {r['baseline']}; {top}) {r['seconds']:.0f} s",
-            flush=True,
-        )
-    print(f"named right: {sum(r['right'] for r in rows)} of {len(rows)}")
-    if args.out:
-        machine = {"load_before": load, "load_after": os.getloadavg()[0]}
-        machine["wall_s"] = time.perf_counter() - t0
-        Path(args.out).write_text(json.dumps({"rows": rows, "machine": machine}, indent=1))
+    run_cases(case, jobs, args.jobs, None, args.out)
 
 
 if __name__ == "__main__":

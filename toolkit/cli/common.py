@@ -219,6 +219,11 @@ def csv_header(path: str | Path) -> list[str]:
         return []
 
 
+def warn(text: str) -> None:
+    """Print a warning as every command does: ``tendonkit: warning: <text>`` on stderr."""
+    print(f"tendonkit: warning: {text}", file=sys.stderr)
+
+
 def raise_problems(problems: list[str], headline: str = "The command cannot run:") -> None:
     """Raise one :class:`UsageError` listing all problems, if any."""
     if problems:

@@ -33,6 +33,7 @@ from .common import (
     same_file,
     seed_argument,
     split_names,
+    warn,
     write_json,
 )
 
@@ -214,7 +215,7 @@ def _teller(told: list[str], shown: Any) -> Any:
     def show(message: Any, category: Any, filename: str, lineno: int, *rest: Any) -> None:
         if issubclass(category, TendonkitWarning):
             told.append(str(message))
-            print(f"tendonkit: warning: {message}", file=sys.stderr)
+            warn(str(message))
         else:
             shown(message, category, filename, lineno, *rest)
 

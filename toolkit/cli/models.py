@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +26,7 @@ from .common import (
     output_dirs,
     raise_problems,
     same_file,
+    warn,
     write_json,
 )
 
@@ -134,7 +134,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
     fits = ", ".join(f"{k} {v:.2f} %" for k, v in model.provenance.training_fit.items())
     print(f"{args.method}: {model.kind} model written to {args.output} (training fit: {fits})")
     for w in said:
-        print(f"tendonkit: warning: {w}", file=sys.stderr)
+        warn(w)
     return 0
 
 

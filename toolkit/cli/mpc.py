@@ -47,6 +47,7 @@ from .common import (
     raise_problems,
     same_file,
     seed_argument,
+    warn,
     write_json,
 )
 
@@ -217,11 +218,10 @@ def cmd_mpc(args: argparse.Namespace) -> int:
     raise_problems(problems, "tendonkit mpc cannot run:")
     assert model is not None
     if [n.upper() for n in model.input_names] == ["T1", "T2", "T3", "T4"]:
-        print(
-            f"tendonkit: warning: model {model.name!r} maps the measured tensions T1..T4 to the "
-            "angles; the controller sends the commanded forces u1..u4, which reach T through "
-            "the force controller's lag. Identify MPC models on u1..u4 (docs/tutorial.md, 6).",
-            file=sys.stderr,
+        warn(
+            f"model {model.name!r} maps the measured tensions T1..T4 to the angles; the "
+            "controller sends the commanded forces u1..u4, which reach T through the force "
+            "controller's lag. Identify MPC models on u1..u4 (docs/tutorial.md, 6)."
         )
     assert model is not None and reference is not None and kind is not None
     return _run(args, model, kind, reference, settings, plant, overrides, params)

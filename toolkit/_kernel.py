@@ -195,9 +195,11 @@ def _at(buf, r, c, d):  # pragma: no cover - numba
 @njit(cache=True, nogil=True, inline="always")
 def _terms_at(  # pragma: no cover - numba
     a, b, kk, ptr, src, col, lag, diff, src2, col2, code, power, scale, offset, param, param2,
-    weight, st, theta,
+    weight, st, theta, skip,
 ):  # fmt: skip
     for t in range(ptr.shape[0] - 1):
+        if skip[t]:  # computed by the caller (:func:`arx_loop`'s terms of inputs only)
+            continue
         prod = 1.0
         for f in range(ptr[t], ptr[t + 1]):
             # index each buffer in its own branch: binding ``buf = a if ... else b`` makes
@@ -219,14 +221,16 @@ def _terms_at(  # pragma: no cover - numba
 
 @njit(cache=True, nogil=True)
 def arx_loop(  # pragma: no cover - numba
-    U, Y, G, off, Acat, na, start, L, coef_t, ptr, src, col, lag, diff, src2, col2, code, power,
-    scale, offset, param, param2, weight, st,
+    U, Y, G, off, Acat, na, start, L, coef_t, pre, base, series, ptr, src, col, lag, diff, src2,
+    col2, code, power, scale, offset, param, param2, weight, st,
 ):  # fmt: skip
     """``Y[k+L] = off + Σ_l G[l]·U[k+L-l] - Acat·[Y[k+L-1]; …; Y[k+L-na]] + coef_t·θ(k)``.
 
     From sample ``start`` on; ``G`` holds the input matrices per lag (delays included), ``Y``
     (padded with ``L`` samples of history) is written in place; the first sample where an
-    output turns non-finite and every later one are NaN.
+    output turns non-finite and every later one are NaN.  The terms flagged ``pre`` (of
+    inputs only, :func:`input_bases`) are products of the rows of ``series``
+    (:func:`input_series`) read at their factors' lags; the others are evaluated here.
     """
     N = U.shape[0] - L
     ny, nu = Y.shape[1], U.shape[1]
@@ -244,8 +248,14 @@ def arx_loop(  # pragma: no cover - numba
         if nt:
             _terms_at(
                 U, Y, kk, ptr, src, col, lag, diff, src2, col2, code, power, scale, offset, param,
-                param2, weight, st, theta,
+                param2, weight, st, theta, pre,
             )  # fmt: skip
+            for t in range(nt):
+                if pre[t]:
+                    prod = 1.0
+                    for f in range(ptr[t], ptr[t + 1]):
+                        prod *= series[base[f], kk - lag[f]]
+                    theta[t] = prod
         ok = True
         for i in range(ny):
             acc = off[i]
@@ -324,6 +334,7 @@ def ss_terms_loop(  # pragma: no cover - numba
     N = u.shape[0]
     n, ny, nu = A.shape[0], C.shape[0], u.shape[1]
     theta = np.empty(ptr.shape[0] - 1)
+    none = np.zeros(theta.shape[0], dtype=np.bool_)
     xn = np.empty(n)
     for k in range(N):
         kk = k + L
@@ -336,7 +347,7 @@ def ss_terms_loop(  # pragma: no cover - numba
             Y[kk, i] = acc
         _terms_at(
             U, Y, kk, ptr, src, col, lag, diff, src2, col2, code, power, scale, offset, param,
-            param2, weight, st, theta,
+            param2, weight, st, theta, none,
         )  # fmt: skip
         ok = True
         for i in range(n):
@@ -366,11 +377,12 @@ def sparse_loop(  # pragma: no cover - numba
     nx = X.shape[1]
     nt = ptr.shape[0] - 1
     theta = np.empty(nt)
+    none = np.zeros(nt, dtype=np.bool_)
     for k in range(N - 1):
         kk = k + L
         _terms_at(
             U, X, kk, ptr, src, col, lag, diff, src2, col2, code, power, scale, offset, param,
-            param2, weight, st, theta,
+            param2, weight, st, theta, none,
         )  # fmt: skip
         ok = True
         for i in range(nx):
@@ -438,6 +450,68 @@ def rate_loop(s, rate):  # pragma: no cover - numba
     for k in range(s.shape[0]):
         v += min(max(s[k] - v, -rate), rate)
         out[k] = v
+    return out
+
+
+def input_bases(flat: FlatTerms) -> tuple[NDArray[np.bool_], IntArray, FlatTerms]:
+    """The terms :func:`arx_loop` takes from :func:`input_series`: ``(pre, base, factors)``.
+
+    ``pre[t]``: term ``t`` reads inputs only (buffer 0) through memoryless functions, so its
+    value at every sample is known before the recursion runs.  Its factors that differ only
+    in their lag are one series, shifted (an input's powers at every lag the model reads — a
+    curve between two filters has dozens): ``base[f]`` is factor ``f``'s series (-1: not
+    precomputed) and ``factors`` one factor per series, as flat arrays (its ``lag`` unused).
+    """
+    nt = flat.n_terms
+    pre = np.zeros(nt, dtype=np.bool_)
+    base = np.full(flat.code.shape[0], -1, dtype=np.int64)
+    keys: dict[tuple[Any, ...], int] = {}
+    first: list[int] = []
+    for t in range(nt):
+        fs = range(int(flat.ptr[t]), int(flat.ptr[t + 1]))
+        if not all(flat.src[f] == 0 and flat.src2[f] <= 0 and flat.code[f] < PLAY for f in fs):
+            continue
+        pre[t] = True
+        for f in fs:
+            key = tuple(
+                float(getattr(flat, name)[f])
+                for name in ("col", "diff", "src2", "col2", "code", "power", "scale", "offset",
+                             "param", "weight")
+            )  # fmt: skip
+            if key not in keys:
+                keys[key] = len(first)
+                first.append(f)
+            base[f] = keys[key]
+    idx = np.asarray(first, dtype=np.int64)
+    factors = FlatTerms(
+        np.arange(idx.shape[0] + 1, dtype=np.int64),
+        *(getattr(flat, name)[idx] for name in (
+            "src", "col", "lag", "diff", "src2", "col2", "code", "power", "scale", "offset",
+            "param", "param2", "weight",
+        )),
+    )  # fmt: skip
+    return pre, base, factors
+
+
+@njit(cache=True, nogil=True)
+def input_series(  # pragma: no cover - numba
+    U, col, diff, src2, col2, code, power, scale, offset, param, weight
+):  # fmt: skip
+    """``(n_factors, rows)``: each factor (as :func:`input_bases` gives them) at every row of
+    ``U``, computed as :func:`_terms_at` computes it (the same numbers); rows before a
+    difference's reach are NaN (no lag reads them)."""
+    out = np.empty((code.shape[0], U.shape[0]))
+    for f in range(code.shape[0]):
+        d = diff[f]
+        for r in range(U.shape[0]):
+            if r - d < 0:
+                out[f, r] = np.nan
+                continue
+            s = _at(U, r, col[f], d)
+            if src2[f] >= 0:
+                s = s - weight[f] * _at(U, r, col2[f], d)
+            z = (s - offset[f]) * scale[f]
+            out[f, r] = _fn(code[f], z, power[f], param[f])
     return out
 
 

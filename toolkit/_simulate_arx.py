@@ -104,6 +104,12 @@ def _sim_arx(
             {n: j for j, n in enumerate(model.output_names)},
         )
         coef_t = np.zeros((ny, 0)) if coef is None or linear else np.ascontiguousarray(coef.T)
+        # terms of inputs only: each distinct factor computed once for the whole record
+        pre, base, fac = _kernel.input_bases(flat)
+        series = _kernel.input_series(
+            U, fac.col, fac.diff, fac.src2, fac.col2, fac.code, fac.power, fac.scale,
+            fac.offset, fac.param, fac.weight,
+        )  # fmt: skip
         _kernel.run_terms(
             _kernel.arx_loop,
             U,
@@ -115,6 +121,9 @@ def _sim_arx(
             start,
             L,
             coef_t,
+            pre,
+            base,
+            series,
             flat=flat,
         )
         return Y[L:]

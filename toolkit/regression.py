@@ -7,13 +7,14 @@ extensions diagnose refits; :func:`term_columns` evaluates structured terms
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 
 import numpy as np
 from numpy.typing import NDArray
 
 from .dataset import Dataset, Experiment
-from .terms import CompiledTerms, Term, series_getter
+from .terms import CompiledTerms, Getter, Term, series_getter
 
 __all__ = ["r_factor", "scaled_lstsq", "term_columns", "term_columns_of"]
 
@@ -93,12 +94,46 @@ def r_factor(A: FloatArray) -> FloatArray:
 
 
 def term_columns_of(terms: Sequence[Term], signals: dict[str, FloatArray], n: int) -> FloatArray:
-    """``(n, n_terms)`` values of ``terms`` on named signal series (constants when no signal)."""
+    """``(n, n_terms)`` values of ``terms`` on named signal series (constants when no signal).
+
+    Without operators with a memory, each distinct factor is evaluated once at lag 0 and
+    shifted to every lag it is read at (:func:`_shifted_columns`): the same numbers, at a
+    fraction of the cost for the powers of an input at every lag a model reads.
+    """
     ct = CompiledTerms(terms)
     if not ct.keys:
         return np.ones((n, ct.n_terms))
     get = series_getter(signals)
+    if not ct.stateful:
+        return _shifted_columns(ct.terms, get, n)
     return ct.evaluate(np.array([get(name, lag) for name, lag in ct.keys])).T
+
+
+def _shifted_columns(terms: Sequence[Term], get: Getter, n: int) -> FloatArray:
+    """:func:`term_columns_of` for memoryless terms, each distinct factor evaluated once.
+
+    A factor read at lag ``l`` is the factor at lag 0 shifted by ``l`` samples, its first
+    ``l`` samples the first sample's value — exactly what evaluating it on the edge-padded
+    lagged series (:func:`tendonkit.terms.series_getter`) gives, element by element; a term
+    is the product of its factors in order, as :meth:`CompiledTerms.evaluate` forms it.
+    """
+    bases = list(dict.fromkeys(dataclasses.replace(f, lag=0) for t in terms for f in t.factors))
+    if bases:
+        ct = CompiledTerms([Term((f,)) for f in bases])
+        values = ct.evaluate(np.array([get(name, lag) for name, lag in ct.keys]))
+    index = {f: i for i, f in enumerate(bases)}
+    out = np.ones((len(terms), n))  # returned transposed, the memory layout evaluate's has
+    for t, term in enumerate(terms):
+        for j, f in enumerate(term.factors):
+            v = values[index[dataclasses.replace(f, lag=0)]]
+            lag = min(f.lag, n)
+            if j == 0:
+                out[t, lag:] = v[: n - lag]
+                out[t, :lag] = v[0] if n else 1.0
+            else:
+                out[t, lag:] *= v[: n - lag]
+                out[t, :lag] *= v[0] if n else 1.0
+    return out.T
 
 
 def term_columns(terms: Sequence[Term], e: Experiment, data: Dataset) -> FloatArray:

@@ -105,3 +105,67 @@ def test_unit_responses_are_the_impulse_responses_convolved_with_each_signal(nx,
     got = unit_responses(A, C, S)
     assert got.shape == (N, ny, nx * nc)
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-12 * np.abs(want).max())
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_terms_of_inputs_taken_from_their_series_are_the_same_numbers(seed):
+    """``arx_loop`` takes the memoryless terms of inputs only from series computed once per
+    distinct factor (``input_bases``, ``input_series``) instead of evaluating every factor at
+    every sample: the simulation is the same bit for bit as with every term evaluated in the
+    loop, on ARX models whose terms mix inputs (powers and curves at several lags, differences,
+    a relative factor), outputs and operators with a memory."""
+    from tendonkit import _kernel
+    from tendonkit.schema import ARX, Model, Signal
+    from tendonkit.terms import Factor, Term
+
+    rng = np.random.default_rng(seed)
+    inputs, outputs = ["u1", "u2"], ["y1"]
+    terms = [
+        Term((Factor("u1", fn="pow", power=float(p), lag=lag),))
+        for p in (2, 3)
+        for lag in (1, 2, 3)
+    ]
+    terms += [
+        Term((Factor("u2", fn="tanh", lag=1, scale=0.7), Factor("u1", lag=2))),
+        Term((Factor("u2", fn="abs", lag=2, diff=1),)),
+        Term((Factor("u1", fn="sin", lag=1, minus="u2", weight=0.8),)),
+        Term((Factor("y1", fn="pow", power=3.0, lag=1),)),
+        Term((Factor("u1", fn="pow", power=2.0, lag=1), Factor("y1", fn="sign", lag=1, diff=1))),
+        Term((Factor("y1", fn="play", lag=1, param=0.1),)),
+        Term(),
+    ]
+    nt = len(terms)
+    rep = ARX(
+        A=(np.array([[-1.2]]), np.array([[0.5]])),
+        B=tuple(rng.normal(0, 0.3, (1, 2)) for _ in range(3)),
+        nk=(1, 1),
+        terms=tuple(terms),
+        # the cubic of the output restoring (negative): the draws stay finite
+        term_coefficients=rng.normal(0, 0.01, (nt, 1)) * np.where(np.arange(nt) == 9, 0, 1)[:, None]
+        - 0.05 * (np.arange(nt) == 9)[:, None],
+    )
+    model = Model(
+        name="mixed terms",
+        inputs=tuple(Signal(n) for n in inputs),
+        outputs=tuple(Signal(n) for n in outputs),
+        dt=0.01,
+        representation=rep,
+    )
+    u = rng.normal(0, 1, (400, 2)).cumsum(axis=0) * 0.1
+    y = rng.normal(0, 0.5, (400, 1))
+    fast = simulate(model, u, y=y, initial="estimate", engine="compiled")
+
+    flat = _kernel.flatten(rep.terms, {"u1": 0, "u2": 1}, {"y1": 0})
+    pre, _, _ = _kernel.input_bases(flat)
+    assert pre.tolist() == [True] * 9 + [False, False, False, True]
+    original = _kernel.input_bases
+    try:  # every term evaluated in the loop, as before the series
+        _kernel.input_bases = lambda f: (
+            np.zeros(f.n_terms, dtype=np.bool_),
+            *original(f)[1:],
+        )
+        slow = simulate(model, u, y=y, initial="estimate", engine="compiled")
+    finally:
+        _kernel.input_bases = original
+    assert np.all(np.isfinite(fast))
+    np.testing.assert_array_equal(fast.view(np.int64), slow.view(np.int64))

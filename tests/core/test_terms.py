@@ -267,3 +267,35 @@ def test_a_term_evaluated_on_one_sample_is_its_value_not_one():
     assert float(t.evaluate(lambda name, lag: {"y": 2.0, "u": -0.5}[name])) == -4.0
     assert float(Term(()).evaluate(lambda name, lag: 7.0)) == 1.0
     np.testing.assert_array_equal(Term(()).evaluate(lambda n, k: 0.0, (3,)), np.ones(3))
+
+
+@pytest.mark.parametrize("n", [1, 3, 40, 700])
+def test_regressor_columns_shift_each_distinct_factor_and_are_the_same_numbers(n):
+    """``term_columns_of`` evaluates each distinct memoryless factor once and shifts it to
+    every lag it is read at: the columns are those of evaluating every term on the edge-padded
+    lagged series, bit for bit and in the same memory layout (a least-squares fit downstream
+    rounds by the layout), for every function, lags up to beyond the record, differences and
+    relative factors, products of several factors and a constant."""
+    from tendonkit.regression import term_columns_of
+
+    rng = np.random.default_rng(n)
+    sig = {s: rng.normal(0, 2, n) for s in ("x", "u", "w")}
+    terms = [Term()]
+    for fn in [f for f in FUNCTIONS if f not in ("play", "bouc_wen", "slew_lag")]:
+        kw = (
+            {"power": 3.0}
+            if fn == "pow"
+            else ({"param": 0.4} if fn in ("dead_zone", "sat", "relu") else {})
+        )
+        for lag in (0, 1, 4, n + 2):
+            terms.append(Term((Factor("x", fn=fn, lag=lag, scale=0.7, offset=0.1, **kw),)))
+        terms.append(Term((Factor("u", fn=fn, lag=2, diff=1, **kw), Factor("x", lag=3))))
+        terms.append(Term((Factor("w", fn=fn, lag=1, minus="u", weight=0.6, diff=2, **kw),)))
+    terms.append(Term((Factor("x", lag=1), Factor("u", fn="sin", lag=2), Factor("w", fn="abs"))))
+    get = series_getter(sig)
+    ct = CompiledTerms(terms)
+    expected = ct.evaluate(np.array([get(name, lag) for name, lag in ct.keys])).T
+    got = term_columns_of(terms, sig, n)
+    assert got.shape == expected.shape == (n, len(terms))
+    assert got.flags.f_contiguous == expected.flags.f_contiguous
+    np.testing.assert_array_equal(got.view(np.int64), expected.view(np.int64))

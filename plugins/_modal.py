@@ -34,7 +34,6 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.signal import lfilter
 
 from tendonkit.schema import StateSpace
 
@@ -139,6 +138,9 @@ def decode(layout: Layout, theta: FloatArray) -> Modes:
 
 def _filter(p: complex, x: NDArray[np.generic]) -> ComplexArray:
     """``g[k+1] = p g[k] + x[k]``, ``g[0] = 0`` along axis 0."""
+    # lazy: heavy (scipy.signal, 1.2 s to import: every command loads this plugin)
+    from scipy.signal import lfilter
+
     return np.asarray(lfilter([0.0, 1.0], [1.0, -p], x, axis=0))
 
 
@@ -157,6 +159,9 @@ def _powers(p: complex, k: NDArray[np.int_]) -> ComplexArray:
     """``p**k`` by the recursion itself (a filtered impulse: 30 times faster than ``power``)."""
     impulse = np.zeros(k.size, dtype=complex if isinstance(p, complex) else float)
     impulse[:1] = 1.0
+    # lazy: heavy (scipy.signal)
+    from scipy.signal import lfilter
+
     with np.errstate(under="ignore"):
         return np.asarray(lfilter([1.0], [1.0, -p], impulse))
 

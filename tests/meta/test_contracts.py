@@ -42,6 +42,23 @@ def test_heavy_libraries_are_not_imported_by_the_cli_module():
     assert out.stdout.strip() == "[]"
 
 
+def test_loading_the_plugins_imports_nothing_heavy():
+    """Every command loads the identifiers and effects; a plugin module that imports a heavy
+    library at its top makes every command pay for it (``scipy.signal`` and the
+    ``scipy.stats`` it pulls in cost 1.2 of the 3.3 s an ``identify`` took)."""
+    import subprocess
+    import sys
+
+    heavy = ("scipy.signal", "scipy.stats", "scipy.optimize", "cvxpy", "pysindy", "fmpy",
+             "matplotlib", "sklearn")  # fmt: skip
+    code = (
+        "import sys, tendonkit as tk; tk.identifiers(); tk.effects(); "
+        f"print(sorted(m for m in {heavy!r} if m in sys.modules))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
+
+
 #: tendonkit 0.1's public API and commands: the move into rooms kept every one of them.
 API_0_1 = [
     "ARX", "Block", "DataError", "Dataset", "Experiment", "FMUError", "Factor", "InputTarget",

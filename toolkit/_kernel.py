@@ -586,6 +586,169 @@ def unit_response_loop(A, C, S):  # pragma: no cover - numba
     return out
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _dfn(code: int, z: float, power: float, param: float) -> float:  # pragma: no cover - numba
+    """``d _fn / d z`` almost everywhere (``tendonkit.terms._apply(..., deriv=True)``)."""
+    if code == 0:
+        if power == 1.0:
+            return 1.0
+        return power * z ** (power - 1.0)
+    if code == 1:
+        return np.cos(z)
+    if code == 2:
+        return -np.sin(z)
+    if code == 3:
+        t = np.tanh(z)
+        return 1.0 - t * t
+    if code == 4:
+        return 0.0
+    if code == 5:
+        return 1.0 if z > 0.0 else (-1.0 if z < 0.0 else 0.0)
+    if code == 6:
+        return 1.0 if abs(z) > param else 0.0
+    if code == 7:
+        return 1.0 if abs(z) < param else 0.0
+    return 1.0 if z > param else 0.0
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _reading_tangent(S, r, c, d, P, out, w):  # pragma: no cover - numba
+    """``out += w · (S[r, c] - S[r - d, c])`` (``d`` = 0: ``w · S[r, c]``) over the P columns."""
+    for p in range(P):
+        out[p] += w * (S[r, c, p] - S[r - d, c, p]) if d else w * S[r, c, p]
+
+
+@njit(cache=True, nogil=True)
+def arx_sensitivity_terms(  # pragma: no cover - numba
+    Phi, A, coef, tcol, tsign, U, Y, start, L, ptr, src, col, lag, diff, src2, col2, code,
+    power, scale, offset, param, param2, weight,
+):  # fmt: skip
+    """:func:`arx_sensitivity` for terms of every kind: operators with a memory, and terms
+    whose coefficients are tied to ``A`` (a clipped state).
+
+    The terms are evaluated along the simulation ``Y`` (padded with ``L`` rows, as
+    :func:`arx_loop` wrote it; ``U`` its input buffer) from sample ``start``, as the
+    simulation evaluated them, and each factor carries its tangent: ``f'(z)·∂z`` for a
+    memoryless one; for an operator with a memory the tangent of its state, advanced by the
+    operator's own rule in the regime it is in at that sample — a play that moves follows
+    ``∂z`` and one that holds keeps its tangent, a slew lag inside its largest step is the lag
+    ``(1 - g)·∂r + g·∂z`` and at it keeps its tangent, a Bouc–Wen state
+    ``∂h⁺ = (1 - α|d| - β d sgn h)·∂h + (1 - α sgn(d) h - β|h|)·∂d`` with ``d = z - z⁻``.
+    Term ``t``'s value adds to column ``tcol[t, i]`` of output ``i`` times ``tsign[t]`` (its
+    own coefficient, or the ``A`` entry its coefficient is tied to; -1: none), so ``Phi``
+    holds only the ``A``, ``B`` and offset columns.
+    """
+    N, ny, P = Phi.shape
+    na = A.shape[0]
+    nt = ptr.shape[0] - 1
+    nf = max(code.shape[0], 1)
+    S = np.zeros((N + L, ny, P))
+    st = np.full((nf, 2), np.nan)
+    T1 = np.zeros((nf, P))  # tangent of an operator's output (Bouc-Wen: of h)
+    T2 = np.zeros((nf, P))  # Bouc-Wen: tangent of the previous z
+    dz = np.zeros(P)
+    val = np.empty(nf)
+    dv = np.zeros((nf, P))
+    dth = np.zeros((nt, P))
+    theta = np.empty(nt)
+    moves = np.zeros(nf, dtype=np.bool_)  # reads an output: its tangent is not zero
+    for f in range(code.shape[0]):
+        moves[f] = src[f] == 1 or src2[f] == 1
+    for k in range(start, N):
+        kk = k + L
+        for t in range(nt):
+            for f in range(ptr[t], ptr[t + 1]):
+                r, d = kk - lag[f], diff[f]
+                s = _at(U, r, col[f], d) if src[f] == 0 else _at(Y, r, col[f], d)
+                if src2[f] >= 0:
+                    s = s - weight[f] * (
+                        _at(U, r, col2[f], d) if src2[f] == 0 else _at(Y, r, col2[f], d)
+                    )
+                z = (s - offset[f]) * scale[f]
+                for p in range(P):
+                    dz[p] = 0.0
+                if moves[f]:
+                    if src[f] == 1:
+                        _reading_tangent(S, r, col[f], d, P, dz, scale[f])
+                    if src2[f] == 1:
+                        _reading_tangent(S, r, col2[f], d, P, dz, -weight[f] * scale[f])
+                c = code[f]
+                if c < PLAY:
+                    val[f] = _fn(c, z, power[f], param[f])
+                    g = _dfn(c, z, power[f], param[f]) if moves[f] else 0.0
+                    for p in range(P):
+                        dv[f, p] = g * dz[p]
+                    continue
+                a, h = st[f, 0], st[f, 1]
+                first = np.isnan(a)
+                v = hysteresis_step(c, z, param[f], param2[f], st[f])[0]
+                val[f] = v
+                if c == PLAY:
+                    if first or v != a:  # pushed: follows z
+                        for p in range(P):
+                            T1[f, p] = dz[p]
+                elif c == SLEW_LAG:
+                    if first:
+                        for p in range(P):
+                            T1[f, p] = dz[p]
+                    elif abs(param[f] * (z - a)) < param2[f]:
+                        g = param[f]
+                        for p in range(P):
+                            T1[f, p] = (1.0 - g) * T1[f, p] + g * dz[p]
+                elif first:  # Bouc-Wen from h = 0
+                    for p in range(P):
+                        T1[f, p] = 0.0
+                        T2[f, p] = dz[p]
+                else:
+                    dd = z - a
+                    sd = 1.0 if dd > 0 else (-1.0 if dd < 0 else 0.0)
+                    sh = 1.0 if h > 0 else (-1.0 if h < 0 else 0.0)
+                    eh = 1.0 - param[f] * abs(dd) - param2[f] * dd * sh
+                    ed = 1.0 - param[f] * sd * h - param2[f] * abs(h)
+                    for p in range(P):
+                        T1[f, p] = eh * T1[f, p] + ed * (dz[p] - T2[f, p])
+                        T2[f, p] = dz[p]
+                for p in range(P):
+                    dv[f, p] = T1[f, p]
+            # the term and its tangent: Σ_f ∂v_f Π_{g≠f} v_g
+            prod = 1.0
+            for f in range(ptr[t], ptr[t + 1]):
+                prod *= val[f]
+            theta[t] = prod
+            for p in range(P):
+                dth[t, p] = 0.0
+            for f in range(ptr[t], ptr[t + 1]):
+                if not (moves[f] or code[f] >= PLAY):
+                    continue
+                others = 1.0
+                for g2 in range(ptr[t], ptr[t + 1]):
+                    if g2 != f:
+                        others *= val[g2]
+                if others != 0.0:
+                    for p in range(P):
+                        dth[t, p] += others * dv[f, p]
+        for i in range(ny):
+            row = S[kk, i]
+            for p in range(P):
+                row[p] = Phi[k, i, p]
+            for w in range(na):
+                past = S[kk - 1 - w]
+                for j in range(ny):
+                    a2 = A[w, i, j]
+                    if a2 != 0.0:
+                        for p in range(P):
+                            row[p] -= a2 * past[j, p]
+            for t in range(nt):
+                q = tcol[t, i]
+                if q >= 0:
+                    row[q] += tsign[t] * theta[t]
+                c2 = coef[t, i]
+                if c2 != 0.0:
+                    for p in range(P):
+                        row[p] += c2 * dth[t, p]
+    return S
+
+
 @njit(cache=True, nogil=True)
 def arx_sensitivity(Phi, A, coef, J, qcol, qlag, start, L):  # pragma: no cover - numba
     """``S`` (N + L, ny, P): sensitivities of an ARX simulation from sample ``start``.

@@ -7,8 +7,9 @@ approximation (Ljung, *System Identification*, 2nd ed., §7.3).  :func:`refine` 
 every continuous parameter of a model by its simulation error, starting from the model as
 given, by scipy's trust-region-reflective least squares (Jacobian-scaled, through the compiled
 simulation; the Jacobian of an ARX's coefficients exact by forward sensitivities,
-:func:`tendonkit._kernel.arx_sensitivity`, passed through its output blocks by
-:func:`block_tangent`, the trust-region subproblem from a tall QR:
+:func:`tendonkit._kernel.arx_sensitivity` — through terms with a memory and clipped states
+tied to ``A``, :func:`tendonkit._kernel.arx_sensitivity_terms` — passed through its output
+blocks by :func:`block_tangent`, the trust-region subproblem from a tall QR:
 :func:`_tall_trust_region`; everything else by forward differences and
 :func:`scipy.optimize.least_squares`):
 
@@ -39,7 +40,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from ._kernel import arx_sensitivity, follow_index
+from ._kernel import arx_sensitivity, arx_sensitivity_terms, flatten, follow_index
 from ._simulate_arx import arx_max_lag
 from .dataset import Dataset
 from .errors import SchemaError
@@ -291,11 +292,13 @@ def refine(
     blocks : bool
         Also refine the blocks' parameters; ``False`` keeps them as the caller chose them.
     analytic : bool
-        For an ARX model (memoryless terms, no clipped-state terms, initial state from the
-        data): the Jacobian of the coefficients by forward sensitivities
-        (:func:`tendonkit._kernel.arx_sensitivity`, exact, one pass) passed through the output
-        blocks (:func:`block_tangent`), an output curve's coefficients exactly, the other
-        blocks' parameters by forward differences.  ``False``, and every other model: forward differences throughout (one
+        For an ARX model (initial state from the data): the Jacobian of the coefficients by
+        forward sensitivities (:func:`tendonkit._kernel.arx_sensitivity`; with terms that
+        hold a state — plays, Bouc-Wen operators, slew lags — or a clipped state tied to
+        ``A``, :func:`tendonkit._kernel.arx_sensitivity_terms`: exact, one pass) passed
+        through the output blocks (:func:`block_tangent`), an output curve's coefficients
+        exactly; the blocks' other parameters and the operators' shapes by forward
+        differences.  ``False``, and every other model: forward differences throughout (one
         simulation per parameter).
 
     Returns
@@ -563,14 +566,9 @@ def exact_jacobian(model: Model) -> bool:
 
 
 def _arx_sensitivity_applies(model: Model, initial: str) -> bool:
-    rep = model.representation
-    return (
-        isinstance(rep, ARX)
-        and initial == "estimate"
-        # blocks after the model: the chain rule through each (:func:`block_tangent`)
-        and not any(t.stateful for t in rep.terms)
-        and not tied_terms(rep, model.output_names)
-    )
+    # blocks after the model: the chain rule through each (:func:`block_tangent`); terms of
+    # every kind, tied or with a memory (:func:`tendonkit._kernel.arx_sensitivity_terms`)
+    return isinstance(model.representation, ARX) and initial == "estimate"
 
 
 def _arx_jacobian(
@@ -596,19 +594,39 @@ def _arx_jacobian(
         history = [input_history(model, e.u, e.y) for e in data.experiments]
     outputs, inputs = list(model.output_names), list(model.input_names)
     ny, nu, nt = len(outputs), len(inputs), len(rep0.terms)
-    # The structure is fixed (the terms are memoryless, so only coefficients change): which
-    # coefficient multiplies what, and where the terms read past outputs, is known once.
+    # The structure is fixed (only coefficients change; an operator's shape is a parameter
+    # of forward differences): which coefficient multiplies what, and where the terms read
+    # past outputs, is known once.
     b_entries = [
         (lag, i, j) for lag, b in enumerate(rep0.B) for i, j in zip(*np.nonzero(b), strict=True)
     ]
+    tied = tied_terms(rep0, outputs)
+    n_terms_free = (nt - len(tied)) * ny if rep0.term_coefficients is not None else 0
     n_lin = (
-        sum(a.size for a in rep0.A)
-        + len(b_entries)
-        + (0 if rep0.offset is None else ny)
-        + (nt * ny if rep0.term_coefficients is not None else 0)
-    )
+        sum(a.size for a in rep0.A) + len(b_entries) + (0 if rep0.offset is None else ny)
+    ) + n_terms_free
+    n_shapes = len(_shapes(rep0.terms))
     L = arx_max_lag(rep0, nu)
-    ct = CompiledTerms(rep0.terms) if nt and rep0.term_coefficients is not None else None
+    # Terms with a memory, or tied to A: every term evaluated with its tangent along the
+    # simulation (:func:`tendonkit._kernel.arx_sensitivity_terms`); memoryless terms alone:
+    # their derivatives at each sample (:func:`tendonkit._kernel.arx_sensitivity`).
+    general = bool(tied) or any(t.stateful for t in rep0.terms)
+    tcol = np.full((nt, ny), -1, dtype=np.int64)
+    tsign = np.ones(nt)
+    if general and rep0.term_coefficients is not None:
+        first_term = n_lin - n_terms_free
+        free_rows = [t for t in range(nt) if t not in {t for t, *_ in tied}]
+        for rank, t in enumerate(free_rows):
+            tcol[t] = first_term + rank * ny + np.arange(ny)
+        a_start = np.cumsum([0] + [a.size for a in rep0.A])
+        for t, lag, j, sign in tied:  # its coefficients are sign·A[lag-1][:, j]
+            tcol[t] = a_start[lag - 1] + np.arange(ny) * ny + j
+            tsign[t] = sign
+    ct = (
+        CompiledTerms(rep0.terms)
+        if nt and rep0.term_coefficients is not None and not general
+        else None
+    )
     qs = [q for q, (n, _) in enumerate(ct.keys) if n in outputs] if ct is not None else []
     qcol = np.array([outputs.index(ct.keys[q][0]) for q in qs] if ct else [], dtype=np.int64)
     qlag = np.array([ct.keys[q][1] for q in qs] if ct else [], dtype=np.int64)
@@ -665,7 +683,7 @@ def _arx_jacobian(
 
     def jac(theta: FloatArray) -> FloatArray:
         m = decode(theta)
-        with_blocks = theta.size == n_lin + n_in + n_out  # blocks=True
+        with_blocks = theta.size == n_lin + n_in + n_out + n_shapes  # blocks=True
         rep = m.representation
         assert isinstance(rep, ARX)
         sims, r0 = run(theta)
@@ -690,9 +708,24 @@ def _arx_jacobian(
                 Yp = np.vstack([np.repeat(y_meas[:1], L, axis=0), ys])
                 Phi, J = regressors(rep, Up, Yp, N)
                 Phi[:start] = 0.0  # the measured history does not depend on the parameters
-                S = arx_sensitivity(
-                    Phi, A, np.ascontiguousarray(coef, dtype=float), J, qcol, qlag, start, L
-                )
+                if general:
+                    flat = flatten(
+                        rep.terms,
+                        {n: j for j, n in enumerate(inputs)},
+                        {n: j for j, n in enumerate(outputs)},
+                    )
+                    S = arx_sensitivity_terms(
+                        Phi, A, np.ascontiguousarray(coef, dtype=float), tcol, tsign,
+                        np.ascontiguousarray(Up, dtype=float),
+                        np.ascontiguousarray(Yp, dtype=float), start, L, flat.ptr, flat.src,
+                        flat.col, flat.lag, flat.diff, flat.src2, flat.col2, flat.code,
+                        flat.power, flat.scale, flat.offset, flat.param, flat.param2,
+                        flat.weight,
+                    )  # fmt: skip
+                else:
+                    S = arx_sensitivity(
+                        Phi, A, np.ascontiguousarray(coef, dtype=float), J, qcol, qlag, start, L
+                    )
                 Sx = S[L:]
                 Bx = np.zeros((N, ny, n_out if with_blocks else 0))
                 entering = block_inputs(m.output_blocks, outputs, ys)

@@ -299,3 +299,109 @@ def test_a_slew_lags_shapes_are_refined_once_for_all_its_lags() -> None:
 
     back = Model.from_dict(json.loads(json.dumps(refined.to_dict())))
     np.testing.assert_array_equal(tk.simulate(back, u), tk.simulate(refined, u))
+
+
+def _memory_model(kind: str, ny: int, seed: int) -> Model:
+    """An ARX(2, 2) with terms of ``kind`` (``+``-joined): plays, Bouc-Wen operators and slew
+    lags of the outputs or inputs, a clipped state tied to ``A`` (``tied``), memoryless terms."""
+    from tendonkit.schema import ARX
+
+    rng = np.random.default_rng(seed)
+    outs = [f"y{i + 1}" for i in range(ny)]
+    A1 = -1.5 * np.eye(ny) + 0.05 * rng.normal(size=(ny, ny))
+    A = (A1, 0.7 * np.eye(ny))
+    terms: list[Term] = []
+    coef: list[np.ndarray] = []
+    for part in kind.split("+"):
+        for j, y in enumerate(outs):
+            other = outs[(j + 1) % ny]
+            c = np.zeros(ny)
+            if part == "play":
+                f = Factor(y, fn="play", lag=1, param=0.05 + 0.1 * rng.random(), scale=1.3)
+                c[j] = -0.05
+            elif part == "bouc_wen":
+                f = Factor(y, fn="bouc_wen", lag=1, param=0.5, param2=0.2 * rng.random())
+                c[j] = 0.03
+            elif part == "slew":
+                f = Factor("u", fn="slew_lag", lag=1, param=0.3, param2=0.05, minus=y, weight=0.4)
+                c[j] = 0.05
+            elif part == "between":  # a play between two bodies
+                f = Factor(y, fn="play", lag=1, param=0.05, minus=other)
+                c[j], c[(j + 1) % ny] = -0.03, 0.03
+            elif part == "input_play":
+                f = Factor("u", fn="play", lag=2, param=0.1)
+                c[j] = 0.1
+            elif part == "sign":
+                f = Factor(y, fn="sign", lag=1, diff=1)
+                c[j] = -0.01
+            else:  # tied: a clip of output j at lag 1, its coefficients A1[:, j]
+                f = Factor(y, fn="relu", lag=1, param=0.3)
+                c = A1[:, j].copy()
+            terms.append(Term((f,)))
+            coef.append(c)
+    rep = ARX(
+        A=A,
+        B=(0.3 * np.ones((ny, 1)), 0.1 * np.ones((ny, 1))),
+        nk=(1,),
+        offset=np.full(ny, 0.01),
+        terms=tuple(terms),
+        term_coefficients=np.array(coef),
+    )
+    return Model(
+        name=kind,
+        dt=0.01,
+        inputs=(Signal("u"),),
+        outputs=tuple(Signal(y) for y in outs),
+        representation=rep,
+    )
+
+
+@pytest.mark.parametrize(
+    "kind",
+    ["play", "bouc_wen", "slew", "between", "input_play", "tied", "tied+play+sign",
+     "play+bouc_wen+slew"],
+)  # fmt: skip
+@pytest.mark.parametrize("ny", [1, 2])
+def test_the_exact_jacobian_passes_operators_with_a_memory_and_tied_terms(
+    kind: str, ny: int
+) -> None:
+    """The exact Jacobian of models with terms that hold a state (a play that moves or holds, a
+    Bouc-Wen operator, a slew lag in a loop with the output, a play between two bodies, a play
+    of an input) and with a clipped state whose coefficients are tied to ``A``: each
+    operator's tangent advanced by its rule in the regime it is in (``arx_sensitivity_terms``)
+    equals finite differences in every column, the operators' shapes included (forward
+    differences in both)."""
+    from tendonkit.dataset import Dataset, Experiment
+    from tendonkit.output_error import _arx_jacobian, _codec, exact_jacobian, tied_terms
+    from tendonkit.simulate import _simulate_checked, aligned, input_history, simulate
+
+    m = _memory_model(kind, ny, 0)
+    assert exact_jacobian(m)
+    assert bool(tied_terms(m.representation, m.output_names)) == ("tied" in kind)
+    rng = np.random.default_rng(0)
+    n = 300
+    u = rng.normal(0, 1, (n, 1)).cumsum(0) * 0.2
+    y = simulate(m, u, initial="zero") + rng.normal(0, 0.05, (n, ny))
+    assert np.all(np.isfinite(y))
+    exp = Experiment(t=m.dt * np.arange(n), u=u, y=y, name="a")
+    data = aligned(m, Dataset(m.input_names, m.output_names, (exp,), m.dt))
+    theta0, decode = _codec(m, True)
+    scale = np.std(data.y, axis=0)
+    held = input_history(m, exp.u, exp.y)
+
+    def run(th):  # type: ignore[no-untyped-def]
+        sim = _simulate_checked(decode(th), exp.u, exp.y, "estimate", True, None, held)
+        return [sim], ((exp.y - sim) / scale).ravel()
+
+    exact = _arx_jacobian(m, data, decode, run, scale)(theta0)
+    r0 = run(theta0)[1]
+    # one-sided differences: a play near a turning point changes its regime for a step of
+    # one sign (the central difference then averages two regimes; the exact Jacobian is the
+    # derivative in the regime at the start), so each column matches one side
+    for p in range(theta0.size):
+        h = 1e-7 * max(1.0, abs(float(theta0[p])))
+        step = np.zeros_like(theta0)
+        step[p] = h
+        ahead, behind = (run(theta0 + step)[1] - r0) / h, (r0 - run(theta0 - step)[1]) / h
+        tol = 1e-5 * max(np.abs(ahead).max(), 1.0)
+        assert min(np.abs(exact[:, p] - ahead).max(), np.abs(exact[:, p] - behind).max()) <= tol, p

@@ -1059,6 +1059,28 @@ def test_a_tie_is_decided_where_one_cause_encompasses_the_other(
     )
 
 
+@pytest.mark.parametrize("better", [True, False])
+def test_a_tie_by_the_size_of_the_gains_does_not_say_equally_well_beside_a_small_p(better):
+    """A runner-up within ``tie_ratio`` of the named cause's gain is a tie even where the test
+    finds the named one better (the pan/tilt joint's delay, one-sided p = 1.7e-27): the
+    statement then says it explains the data better and that the gains are close; only where
+    the test does not tell them apart does it say "about equally well"."""
+    from tendonkit.diagnose.findings import _ambiguity
+
+    named, other = _sig("input_delay", 10.0, 1), _sig("actuator_lag", 9.0, 2)
+    rng = np.random.default_rng(3)
+    loss = rng.standard_normal(4000) ** 2
+    worse = loss * 1.5 if better else np.random.default_rng(4).standard_normal(4000) ** 2
+    losses = {"input_delay": (loss, None), "actuator_lag": (worse, None)}
+    tie = _ambiguity([named, other], named, losses, 0.8, 0.01)
+    assert tie is not None
+    assert (tie["p_value"] < 0.01) is better
+    text = tie["statement"]
+    assert ("explains these data better than actuator_lag" in text) is better
+    assert ("the gains are close (90%)" in text) is better
+    assert ("about equally well" in text) is not better
+
+
 def test_a_gain_that_is_not_significant_says_how_much_more_data_would_show_it():
     """The estimate follows loss_test: on a record where a 15 % lower error energy is not yet
     significant, a record as long as the estimate says makes it significant."""

@@ -695,6 +695,15 @@ def _ambiguity(
             f"points) and is significant too: both may be at work, or one stands in for the "
             f"other (one-sided p = {p_value:.3g} that {a.cause} is better)."
         )
+    elif p_value < alpha:
+        # a tie by the size of the gains alone: the test says the named one is better, and
+        # the statement must not say "equally well" beside that p-value
+        statement = (
+            f"{a.cause} (gain {a.gain:.2f}) explains these data better than {b.cause} (gain "
+            f"{b.gain:.2f}; one-sided p = {p_value:.3g} that {a.cause} is better), but the "
+            f"gains are close ({b.gain / a.gain:.0%}): both may be at work, or one stands in "
+            "for the other."
+        )
     else:
         statement = (
             f"{a.cause} (gain {a.gain:.2f}) and {b.cause} (gain {b.gain:.2f}) explain these data "

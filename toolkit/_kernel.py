@@ -473,8 +473,8 @@ def input_bases(flat: FlatTerms) -> tuple[NDArray[np.bool_], IntArray, FlatTerms
             continue
         pre[t] = True
         for f in fs:
-            key = tuple(
-                float(getattr(flat, name)[f])
+            key = tuple(  # by the bits: 0.0 and -0.0 are different factors here
+                np.float64(getattr(flat, name)[f]).tobytes()
                 for name in ("col", "diff", "src2", "col2", "code", "power", "scale", "offset",
                              "param", "weight")
             )  # fmt: skip
@@ -501,9 +501,12 @@ def input_series(  # pragma: no cover - numba
     ``U``, computed as :func:`_terms_at` computes it (the same numbers); rows before a
     difference's reach are NaN (no lag reads them)."""
     out = np.empty((code.shape[0], U.shape[0]))
-    for f in range(code.shape[0]):
-        d = diff[f]
-        for r in range(U.shape[0]):
+    # rows outer, factors inner (the function varies in the inner loop): a loop over one
+    # function's rows could be vectorised with a vector maths library (numba uses SVML where
+    # it is installed) whose sin, tanh, pow differ from the scalar calls in the last bit
+    for r in range(U.shape[0]):
+        for f in range(code.shape[0]):
+            d = diff[f]
             if r - d < 0:
                 out[f, r] = np.nan
                 continue
@@ -635,8 +638,9 @@ def arx_sensitivity_terms(  # pragma: no cover - numba
     ``(1 - g)·∂r + g·∂z`` and at it keeps its tangent, a Bouc–Wen state
     ``∂h⁺ = (1 - α|d| - β d sgn h)·∂h + (1 - α sgn(d) h - β|h|)·∂d`` with ``d = z - z⁻``.
     Term ``t``'s value adds to column ``tcol[t, i]`` of output ``i`` times ``tsign[t]`` (its
-    own coefficient, or the ``A`` entry its coefficient is tied to; -1: none), so ``Phi``
-    holds only the ``A``, ``B`` and offset columns.
+    own coefficient, or the ``A`` entry its coefficient is tied to; -1: none), so the term
+    columns of ``Phi`` are left zero by the caller (its ``A``, ``B`` and offset columns hold
+    their regressors).
     """
     N, ny, P = Phi.shape
     na = A.shape[0]
@@ -718,7 +722,7 @@ def arx_sensitivity_terms(  # pragma: no cover - numba
             for p in range(P):
                 dth[t, p] = 0.0
             for f in range(ptr[t], ptr[t + 1]):
-                if not (moves[f] or code[f] >= PLAY):
+                if not moves[f]:  # reads inputs only: its tangent is zero
                     continue
                 others = 1.0
                 for g2 in range(ptr[t], ptr[t + 1]):

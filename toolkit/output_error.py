@@ -585,7 +585,8 @@ def _arx_jacobian(
     (:func:`tendonkit.simulate.input_history` of ``model``, the default).
 
     The coefficients come first in the parameter vector (``_codec``: ``A``, the non-zero
-    ``B``, the offset, the term coefficients), the blocks' parameters after them.  ``run``
+    ``B``, the offset, the term coefficients but those tied to ``A``), the blocks' parameters
+    after them, then the shapes of the terms' operators with a memory.  ``run``
     gives the simulations and residuals at a parameter vector (those of the step just taken).
     """
     rep0 = model.representation
@@ -610,10 +611,12 @@ def _arx_jacobian(
     # Terms with a memory, or tied to A: every term evaluated with its tangent along the
     # simulation (:func:`tendonkit._kernel.arx_sensitivity_terms`); memoryless terms alone:
     # their derivatives at each sample (:func:`tendonkit._kernel.arx_sensitivity`).
-    general = bool(tied) or any(t.stateful for t in rep0.terms)
+    general = rep0.term_coefficients is not None and (
+        bool(tied) or any(t.stateful for t in rep0.terms)
+    )
     tcol = np.full((nt, ny), -1, dtype=np.int64)
     tsign = np.ones(nt)
-    if general and rep0.term_coefficients is not None:
+    if general:
         first_term = n_lin - n_terms_free
         free_rows = [t for t in range(nt) if t not in {t for t, *_ in tied}]
         for rank, t in enumerate(free_rows):
@@ -662,7 +665,8 @@ def _arx_jacobian(
         return Phi, J
 
     # The parameter vector after the coefficients (``_codec``): the input blocks' free
-    # parameters, then the output blocks' (both in the vector only when blocks are refined).
+    # parameters, then the output blocks' (both in the vector only when blocks are refined),
+    # then the operators' shapes (forward differences).
     # A curve's c0..c3 have exact columns (``d f / d c_i = x^i``), every other block parameter
     # forward differences.
     def free(b: Block) -> list[str]:
@@ -740,7 +744,7 @@ def _arx_jacobian(
         out = np.zeros((r0.size, theta.size))
         out[:, :n_lin] = np.vstack(linear)
         fd = list(range(n_lin, theta.size))
-        if with_blocks and exact_out:  # the output blocks' parameters come last (``_codec``)
+        if with_blocks and exact_out:  # the output blocks' after the input blocks' (``_codec``)
             first = n_lin + n_in
             out[:, [first + q for q in exact_out]] = np.vstack(block_cols)[:, exact_out]
             fd = [p for p in fd if p - first not in exact_out]

@@ -695,7 +695,7 @@ def _ambiguity(
             f"points) and is significant too: both may be at work, or one stands in for the "
             f"other (one-sided p = {p_value:.3g} that {a.cause} is better)."
         )
-    elif p_value < alpha:
+    elif p_value < alpha and a.gain > 0:
         # a tie by the size of the gains alone: the test says the named one is better, and
         # the statement must not say "equally well" beside that p-value
         statement = (

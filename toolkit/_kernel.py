@@ -621,6 +621,23 @@ def _reading_tangent(S, r, c, d, P, out, w):  # pragma: no cover - numba
         out[p] += w * (S[r, c, p] - S[r - d, c, p]) if d else w * S[r, c, p]
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _linear_sensitivity(S, Phi, A, k, kk, i):  # pragma: no cover - numba
+    """Row ``S[kk, i]`` set to ``Φ[k, i] - Σ_w A_w[i] S[kk-1-w]`` (the linear recursion's part
+    of an ARX's sensitivities, the terms' added by the caller); returns the row."""
+    row = S[kk, i]
+    for p in range(S.shape[2]):
+        row[p] = Phi[k, i, p]
+    for w in range(A.shape[0]):
+        past = S[kk - 1 - w]
+        for j in range(A.shape[2]):
+            a = A[w, i, j]
+            if a != 0.0:
+                for p in range(S.shape[2]):
+                    row[p] -= a * past[j, p]
+    return row
+
+
 @njit(cache=True, nogil=True)
 def arx_sensitivity_terms(  # pragma: no cover - numba
     Phi, A, coef, tcol, tsign, U, Y, start, L, ptr, src, col, lag, diff, src2, col2, code,
@@ -643,7 +660,6 @@ def arx_sensitivity_terms(  # pragma: no cover - numba
     their regressors).
     """
     N, ny, P = Phi.shape
-    na = A.shape[0]
     nt = ptr.shape[0] - 1
     nf = max(code.shape[0], 1)
     S = np.zeros((N + L, ny, P))
@@ -732,16 +748,7 @@ def arx_sensitivity_terms(  # pragma: no cover - numba
                     for p in range(P):
                         dth[t, p] += others * dv[f, p]
         for i in range(ny):
-            row = S[kk, i]
-            for p in range(P):
-                row[p] = Phi[k, i, p]
-            for w in range(na):
-                past = S[kk - 1 - w]
-                for j in range(ny):
-                    a2 = A[w, i, j]
-                    if a2 != 0.0:
-                        for p in range(P):
-                            row[p] -= a2 * past[j, p]
+            row = _linear_sensitivity(S, Phi, A, k, kk, i)
             for t in range(nt):
                 q = tcol[t, i]
                 if q >= 0:
@@ -775,23 +782,13 @@ def arx_sensitivity(Phi, A, coef, J, qcol, qlag, start, L):  # pragma: no cover 
     are zero (measured history).
     """
     N, ny, P = Phi.shape
-    na = A.shape[0]
     nt = coef.shape[0]
     nq = qcol.shape[0]
     S = np.zeros((N + L, ny, P))
     for k in range(start, N):
         kk = k + L
         for i in range(ny):
-            row = S[kk, i]
-            for p in range(P):
-                row[p] = Phi[k, i, p]
-            for w in range(na):
-                past = S[kk - 1 - w]
-                for j in range(ny):
-                    a = A[w, i, j]
-                    if a != 0.0:
-                        for p in range(P):
-                            row[p] -= a * past[j, p]
+            row = _linear_sensitivity(S, Phi, A, k, kk, i)
             for t in range(nt):
                 c = coef[t, i]
                 if c == 0.0:

@@ -14,8 +14,9 @@ Why this form:
   is not a parameter at all.
 - **Exact derivatives for the price of a few filters.**  Every sensitivity is a first-order
   filter: ``∂s/∂b_j`` is ``Δu_j`` filtered by ``1/(q - p)``, ``∂s/∂p`` is ``s`` itself filtered
-  the same way, ``∂s/∂s0 = p^k``.  One Jacobian costs about ``modes·(inputs + 2)`` calls of
-  :func:`scipy.signal.lfilter`, each a compiled loop over the record — far less than the
+  the same way, ``∂s/∂s0 = p^k``.  One Jacobian costs about ``modes·(inputs + 2)`` first-order
+  filters (:func:`_first_order`, a compiled loop over the record that gives the numbers
+  :func:`scipy.signal.lfilter` gives, in half its time) — far less than the
   ``n² + n(nu + ny)`` simulations of finite differences, and exact.
 
 The parameters' Gauss–Newton covariance (:func:`gauss_newton_covariance`) is mapped to the
@@ -33,6 +34,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numba import njit
 from numpy.typing import NDArray
 
 from tendonkit.schema import StateSpace
@@ -136,12 +138,40 @@ def decode(layout: Layout, theta: FloatArray) -> Modes:
     return Modes(p, b, c, D, y0, u0, s0)
 
 
+@njit(cache=True, nogil=True)
+def _first_order(b0, b1, a1, x, out, finite):  # pragma: no cover - numba
+    """``lfilter([b0, b1], [1, a1], x, axis=0)`` into ``out`` (both ``(N, C)``), operation for
+    operation as scipy's direct form II transposed, ``y = z + b0·x``, ``z = b1·x - a1·y``: the
+    same numbers, in half the time of scipy's loop (which pays a generic call per sample).
+    ``g[k+1] = p g[k] + x[k]`` (``b0 = 0``, ``b1 = 1``) on a ``finite`` ``x`` skips the
+    products by 0 and 1, which there change at most the sign of a zero."""
+    for c in range(x.shape[1]):
+        z = 0.0 * b0  # zero, of the filter's type
+        if finite and b0 == 0.0 and b1 == 1.0:
+            for k in range(x.shape[0]):
+                out[k, c] = z
+                z = x[k, c] - a1 * z
+            continue
+        for k in range(x.shape[0]):
+            xk = x[k, c]
+            y = z + b0 * xk
+            out[k, c] = y
+            z = b1 * xk - a1 * y
+
+
+def _lfilter1(b0: complex, b1: complex, a1: complex, x: NDArray[np.generic]) -> Any:
+    """:func:`_first_order` along axis 0 of a 1-D or 2-D ``x``, in the type lfilter gives."""
+    dtype = np.result_type(np.asarray(b0), np.asarray(b1), np.asarray(a1), x, np.float64)
+    x2 = np.ascontiguousarray(x.reshape(x.shape[0], -1), dtype=dtype)
+    out = np.empty_like(x2)
+    finite = bool(np.all(np.isfinite(x2)))
+    _first_order(dtype.type(b0), dtype.type(b1), dtype.type(a1), x2, out, finite)
+    return out.reshape(x.shape)
+
+
 def _filter(p: complex, x: NDArray[np.generic]) -> ComplexArray:
     """``g[k+1] = p g[k] + x[k]``, ``g[0] = 0`` along axis 0."""
-    # lazy: heavy (scipy.signal, 1.2 s to import: every command loads this plugin)
-    from scipy.signal import lfilter
-
-    return np.asarray(lfilter([0.0, 1.0], [1.0, -p], x, axis=0))
+    return np.asarray(_lfilter1(0.0, 1.0, -p, x))
 
 
 def mode_states(modes: Modes, du: FloatArray, e: int) -> ComplexArray:
@@ -159,11 +189,8 @@ def _powers(p: complex, k: NDArray[np.int_]) -> ComplexArray:
     """``p**k`` by the recursion itself (a filtered impulse: 30 times faster than ``power``)."""
     impulse = np.zeros(k.size, dtype=complex if isinstance(p, complex) else float)
     impulse[:1] = 1.0
-    # lazy: heavy (scipy.signal)
-    from scipy.signal import lfilter
-
     with np.errstate(under="ignore"):
-        return np.asarray(lfilter([1.0], [1.0, -p], impulse))
+        return np.asarray(_lfilter1(1.0, 0.0, -p, impulse))
 
 
 def outputs(modes: Modes, s: ComplexArray, du: FloatArray) -> FloatArray:

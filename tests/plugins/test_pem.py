@@ -317,3 +317,31 @@ def test_a_dead_time_becomes_a_delay_block() -> None:
     assert "delay blocks [5.0]" in model.provenance.notes
     plain = tk.identify(_data(u, y), "pem", order=2, integrator=False, delay=False)
     assert plain.provenance.training_fit["y1"] < 90.0
+
+
+@pytest.mark.parametrize("pole", [0.93, -0.5, 0.97 * np.exp(0.4j), 0.6 + 0j])
+@pytest.mark.parametrize("signal", ["real", "complex", "columns", "not finite"])
+def test_the_modal_filters_give_lfilters_numbers(pole, signal):
+    """The modal form's first-order filters (``_filter``: ``g[k+1] = p g[k] + x[k]``;
+    ``_powers``: ``p^k``) run in a compiled loop; they give scipy.signal.lfilter's numbers
+    (the same type, values equal, NaN and inf where lfilter has them), so pem identifies the
+    same models as when it called lfilter."""
+    from scipy.signal import lfilter
+
+    rng = np.random.default_rng(5)
+    x = rng.standard_normal((700, 3) if signal == "columns" else 700)
+    if signal == "complex":
+        x = x + 1j * rng.standard_normal(700)
+    if signal == "not finite":
+        x[100], x[300] = np.inf, np.nan
+    want = lfilter([0.0, 1.0], [1.0, -pole], x, axis=0)
+    got = _modal._filter(pole, x)
+    assert got.dtype == want.dtype and got.shape == want.shape
+    np.testing.assert_array_equal(got, want)  # NaN where lfilter's is
+    if signal == "real":
+        k = np.arange(700)
+        impulse = np.zeros(700, dtype=complex if isinstance(pole, complex) else float)
+        impulse[0] = 1.0
+        np.testing.assert_array_equal(
+            _modal._powers(pole, k), lfilter([1.0], [1.0, -pole], impulse)
+        )

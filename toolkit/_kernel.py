@@ -462,27 +462,23 @@ def input_bases(flat: FlatTerms) -> tuple[NDArray[np.bool_], IntArray, FlatTerms
     curve between two filters has dozens): ``base[f]`` is factor ``f``'s series (-1: not
     precomputed) and ``factors`` one factor per series, as flat arrays (its ``lag`` unused).
     """
-    nt = flat.n_terms
-    pre = np.zeros(nt, dtype=np.bool_)
-    base = np.full(flat.code.shape[0], -1, dtype=np.int64)
-    keys: dict[tuple[Any, ...], int] = {}
-    first: list[int] = []
-    for t in range(nt):
-        fs = range(int(flat.ptr[t]), int(flat.ptr[t + 1]))
-        if not all(flat.src[f] == 0 and flat.src2[f] <= 0 and flat.code[f] < PLAY for f in fs):
-            continue
-        pre[t] = True
-        for f in fs:
-            key = tuple(  # by the bits: 0.0 and -0.0 are different factors here
-                np.float64(getattr(flat, name)[f]).tobytes()
-                for name in ("col", "diff", "src2", "col2", "code", "power", "scale", "offset",
-                             "param", "weight")
-            )  # fmt: skip
-            if key not in keys:
-                keys[key] = len(first)
-                first.append(f)
-            base[f] = keys[key]
-    idx = np.asarray(first, dtype=np.int64)
+    nt, nf = flat.n_terms, flat.code.shape[0]
+    term_of = np.repeat(np.arange(nt), np.diff(flat.ptr))
+    memoryless_input = (flat.src == 0) & (flat.src2 <= 0) & (flat.code < PLAY)
+    pre = np.bincount(term_of, weights=~memoryless_input, minlength=nt) == 0
+    base = np.full(nf, -1, dtype=np.int64)
+    mine = np.flatnonzero(pre[term_of])  # the factors of those terms
+    # a factor's series is told by everything but its lag, compared by the bits (0.0 and -0.0
+    # are different factors here); numbered in the order of their first factors
+    keys = np.column_stack(
+        [getattr(flat, name)[mine].astype(np.float64) for name in (
+            "col", "diff", "src2", "col2", "code", "power", "scale", "offset", "param", "weight",
+        )]
+    ) if mine.size else np.zeros((0, 10))  # fmt: skip
+    number: dict[bytes, int] = {}
+    for f, key in zip(mine, keys, strict=True):
+        base[f] = number.setdefault(key.tobytes(), len(number))
+    idx = mine[np.unique(base[mine], return_index=True)[1]] if mine.size else mine
     factors = FlatTerms(
         np.arange(idx.shape[0] + 1, dtype=np.int64),
         *(getattr(flat, name)[idx] for name in (

@@ -614,11 +614,14 @@ def _arx_jacobian(
     general = rep0.term_coefficients is not None and (
         bool(tied) or any(t.stateful for t in rep0.terms)
     )
+    in_index = {n: j for j, n in enumerate(inputs)}
+    out_index = {n: j for j, n in enumerate(outputs)}
     tcol = np.full((nt, ny), -1, dtype=np.int64)
     tsign = np.ones(nt)
     if general:
         first_term = n_lin - n_terms_free
-        free_rows = [t for t in range(nt) if t not in {t for t, *_ in tied}]
+        tied_rows = {t for t, *_ in tied}
+        free_rows = [t for t in range(nt) if t not in tied_rows]
         for rank, t in enumerate(free_rows):
             tcol[t] = first_term + rank * ny + np.arange(ny)
         a_start = np.cumsum([0] + [a.size for a in rep0.A])
@@ -699,6 +702,8 @@ def _arx_jacobian(
         block_cols: list[FloatArray] = []
         chain = [(outputs.index(b.signal), b) for b in m.output_blocks]
         inner = m.replace(output_blocks=()) if chain else m
+        # the terms as flat arrays, once for every experiment (their shapes move with theta)
+        flat = flatten(rep.terms, in_index, out_index) if general else None
         with np.errstate(all="ignore"):
             for e, ys, hist in zip(data.experiments, sims, history, strict=True):
                 N = e.u.shape[0]
@@ -712,12 +717,7 @@ def _arx_jacobian(
                 Yp = np.vstack([np.repeat(y_meas[:1], L, axis=0), ys])
                 Phi, J = regressors(rep, Up, Yp, N)
                 Phi[:start] = 0.0  # the measured history does not depend on the parameters
-                if general:
-                    flat = flatten(
-                        rep.terms,
-                        {n: j for j, n in enumerate(inputs)},
-                        {n: j for j, n in enumerate(outputs)},
-                    )
+                if flat is not None:
                     S = arx_sensitivity_terms(
                         Phi, A, np.ascontiguousarray(coef, dtype=float), tcol, tsign,
                         np.ascontiguousarray(Up, dtype=float),

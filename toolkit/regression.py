@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .dataset import Dataset, Experiment
-from .terms import CompiledTerms, Getter, Term, series_getter
+from .terms import CompiledTerms, Factor, Getter, Term, series_getter
 
 __all__ = ["r_factor", "scaled_lstsq", "term_columns", "term_columns_of"]
 
@@ -117,15 +117,18 @@ def _shifted_columns(terms: Sequence[Term], get: Getter, n: int) -> FloatArray:
     lagged series (:func:`tendonkit.terms.series_getter`) gives, element by element; a term
     is the product of its factors in order, as :meth:`CompiledTerms.evaluate` forms it.
     """
-    bases = list(dict.fromkeys(dataclasses.replace(f, lag=0) for t in terms for f in t.factors))
-    if bases:
-        ct = CompiledTerms([Term((f,)) for f in bases])
+    at_zero = [[dataclasses.replace(f, lag=0) for f in t.factors] for t in terms]
+    index: dict[Factor, int] = {}
+    for fs in at_zero:
+        for f in fs:
+            index.setdefault(f, len(index))
+    if index:
+        ct = CompiledTerms([Term((f,)) for f in index])
         values = ct.evaluate(np.array([get(name, lag) for name, lag in ct.keys]))
-    index = {f: i for i, f in enumerate(bases)}
     out = np.ones((len(terms), n))  # returned transposed, the memory layout evaluate's has
-    for t, term in enumerate(terms):
-        for j, f in enumerate(term.factors):
-            v = values[index[dataclasses.replace(f, lag=0)]]
+    for t, (term, fs) in enumerate(zip(terms, at_zero, strict=True)):
+        for j, (f, f0) in enumerate(zip(term.factors, fs, strict=True)):
+            v = values[index[f0]]
             lag = min(f.lag, n)
             if j == 0:
                 out[t, lag:] = v[: n - lag]
